@@ -1,0 +1,26 @@
+"""HyperGS for Blender: videos as editable 2D Gaussians (extension entry point).
+
+The work happens in `hypergs_blender` (no bpy); `ops`, `ui` and `engine` are the Blender glue.
+"""
+import bpy
+
+from . import engine, ops, ui
+from .ops.props import HyperGSClipSettings
+
+CLASSES = [*ops.CLASSES, *ui.CLASSES, *engine.CLASSES]
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.hypergs = bpy.props.PointerProperty(type=HyperGSClipSettings)
+    engine.register()
+    ui.register()
+
+
+def unregister():
+    ui.unregister()
+    engine.unregister()
+    del bpy.types.Object.hypergs
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

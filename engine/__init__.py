@@ -1,0 +1,70 @@
+"""The HYPERGS render engine: F12 / Ctrl-F12 render every visible clip additively from the evaluated
+geometry at the scene's resolution x percentage; the viewport's Rendered mode shows the same frame."""
+from __future__ import annotations
+
+import bpy
+
+from .geometry import evaluated_clips, render_clips
+
+# Viewport renders are rasterized at most this many pixels on the long side, then drawn scaled.
+VIEWPORT_MAX_SIZE = 640
+
+
+class HyperGSRenderEngine(bpy.types.RenderEngine):
+    bl_idname = "HYPERGS"
+    bl_label = "HyperGS"
+    bl_use_preview = False
+    bl_use_postprocess = True
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._view = None  # viewport cache: (key, texture, size)
+
+    def render(self, depsgraph):
+        width, height = self.resolution_x, self.resolution_y
+        self.update_stats("", "HyperGS: reading clips")
+
+        def keep_going(done, total):
+            self.update_progress(done / total if total else 1.0)
+            if done < total:
+                self.update_stats("", f"HyperGS: clip {done + 1} of {total}")
+            return not self.test_break()
+
+        rgba = render_clips(evaluated_clips(depsgraph), width, height, keep_going)
+        if rgba is None:
+            return
+        result = self.begin_result(0, 0, width, height)
+        result.layers[0].passes["Combined"].rect.foreach_set(rgba.ravel())
+        self.end_result(result)
+
+    def view_update(self, context, depsgraph):
+        self._view = None
+
+    def view_draw(self, context, depsgraph):
+        from . import draw
+        self._view = draw.view_draw(self, context, depsgraph, self._view, VIEWPORT_MAX_SIZE)
+
+
+# Built-in panels (output size, frame range, colour management, mesh data, ...) show only for the
+# engines they list; add ours to the generic ones, as Blender's custom-engine example does.
+_EXCLUDE_PANELS = {"VIEWLAYER_PT_filter", "VIEWLAYER_PT_layer_passes"}
+
+
+def _panels():
+    for panel in bpy.types.Panel.__subclasses__():
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if engines is not None and "BLENDER_RENDER" in engines and panel.__name__ not in _EXCLUDE_PANELS:
+            yield panel
+
+
+def register():
+    for panel in _panels():
+        panel.COMPAT_ENGINES.add(HyperGSRenderEngine.bl_idname)
+
+
+def unregister():
+    for panel in _panels():
+        panel.COMPAT_ENGINES.discard(HyperGSRenderEngine.bl_idname)
+
+
+CLASSES = [HyperGSRenderEngine]

@@ -1,0 +1,28 @@
+"""`hypergs` command line. Each module in COMMAND_MODULES adds its own subcommands with
+`add_commands(subparsers)`; modules are imported only when the CLI starts."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import HyperGSError
+
+COMMAND_MODULES = ["encode", "evaluate", "train", "network", "fit", "bench", "codec_cli", "data"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hypergs", description=__doc__.splitlines()[0])
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"hypergs_blender.{name}").add_commands(subparsers)
+    return parser
+
+
+def main(argv=None) -> None:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except HyperGSError as e:
+        print(f"hypergs: error: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,178 @@
+"""GaussianVideo: T frames x N Gaussians x 8 parameters, and the maths to render it at any size.
+
+Parameter layout per Gaussian (float32), `PARAMS`:
+  0-1  mean x, y   in canvas coordinates [-1, 1]; (-1, -1) is the canvas' top-left corner,
+                   (1, 1) its bottom-right corner (see raster.py for the pixel-centre convention)
+  2-3  scale x, y  standard deviations along the Gaussian's own axes, in canvas pixels
+  4    rotation    radians in [0, 2*pi): the angle from the image x axis to the Gaussian's x axis
+  5-7  r, g, b     additive colour (sRGB-encoded values, like the source frames)
+
+The canvas is the network's input size (canvas_width x canvas_height). Rendering at W x H stretches
+by T = diag(W / canvas_width, H / canvas_height): means scale with the frame and the covariance
+becomes T Sigma T. Its Cholesky factor goes to the rasterizer.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+PARAMS = ("x", "y", "scale_x", "scale_y", "rotation", "r", "g", "b")
+NUM_PARAMS = len(PARAMS)
+FORMAT_VERSION = 1
+
+
+@dataclass
+class GaussianVideo:
+    params: np.ndarray  # [T, N, 8] float32
+    canvas_width: int
+    canvas_height: int
+    fps: float = 24.0
+    grid: tuple[int, int] = (1, 1)  # patch grid (columns, rows) the clip was encoded with
+    source: dict = field(default_factory=dict)  # free-form: path, frame range, size, psnr, model
+
+    def __post_init__(self):
+        self.params = np.ascontiguousarray(self.params, dtype=np.float32)
+        if self.params.ndim != 3 or self.params.shape[-1] != NUM_PARAMS:
+            raise ValueError(f"GaussianVideo params must be [T, N, {NUM_PARAMS}], got {self.params.shape}")
+        self.grid = tuple(int(g) for g in self.grid)
+
+    @property
+    def num_frames(self) -> int:
+        return self.params.shape[0]
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.params.shape[1]
+
+    def frames(self, start: int, stop: int) -> "GaussianVideo":
+        return GaussianVideo(self.params[start:stop], self.canvas_width, self.canvas_height, self.fps,
+                             self.grid, dict(self.source))
+
+    def save(self, path) -> None:
+        """Uncompressed .npz (no pickle). The .hgs codec is the compact format."""
+        meta = dict(version=FORMAT_VERSION, canvas=[self.canvas_width, self.canvas_height], fps=self.fps,
+                    grid=list(self.grid), source=self.source)
+        with open(path, "wb") as f:
+            np.savez(f, params=self.params, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
+
+    @classmethod
+    def load(cls, path) -> "GaussianVideo":
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                params = z["params"]
+                meta = json.loads(z["meta"].tobytes().decode())
+        except (OSError, ValueError, KeyError) as e:
+            raise ValueError(f"{path}: not a Gaussian video file ({e})") from e
+        if meta.get("version") != FORMAT_VERSION:
+            raise ValueError(f"{path}: unsupported Gaussian video version {meta.get('version')}")
+        w, h = meta["canvas"]
+        return cls(params, w, h, meta["fps"], tuple(meta["grid"]), meta.get("source", {}))
+
+
+def covariance(scale: np.ndarray, rotation: np.ndarray, stretch=(1.0, 1.0)) -> np.ndarray:
+    """[..., 2, 2] covariance T R diag(s^2) R^T T for scales [..., 2] and rotations [...]."""
+    c, s = np.cos(rotation), np.sin(rotation)
+    sx2, sy2 = scale[..., 0] ** 2, scale[..., 1] ** 2
+    tx, ty = stretch
+    xx = (c * c * sx2 + s * s * sy2) * tx * tx
+    yy = (s * s * sx2 + c * c * sy2) * ty * ty
+    xy = c * s * (sx2 - sy2) * tx * ty
+    return np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)
+
+
+def inverse_covariance(scale: np.ndarray, rotation: np.ndarray, stretch=(1.0, 1.0)) -> np.ndarray:
+    cov = covariance(scale, rotation, stretch)
+    det = cov[..., 0, 0] * cov[..., 1, 1] - cov[..., 0, 1] ** 2
+    inv = np.empty_like(cov)
+    inv[..., 0, 0] = cov[..., 1, 1] / det
+    inv[..., 1, 1] = cov[..., 0, 0] / det
+    inv[..., 0, 1] = inv[..., 1, 0] = -cov[..., 0, 1] / det
+    return inv
+
+
+def render_inputs(params, canvas_width: int, canvas_height: int, width: int, height: int):
+    """Map [..., N, 8] parameters (numpy or torch) to the rasterizer's (means_px, chol, colors) at W x H.
+
+    Uses the closed form of the Cholesky factor of T Sigma T: l11 = sqrt(S_xx),
+    l21 = S_xy / l11, l22 = sqrt(det S) / l11 with sqrt(det S) = sx sy tx ty, which stays exact for
+    needle-thin Gaussians where sqrt(S_yy - l21^2) would cancel catastrophically.
+    """
+    xp = _array_module(params)
+    tx, ty = width / canvas_width, height / canvas_height
+    mx = (params[..., 0] + 1) * (0.5 * width)
+    my = (params[..., 1] + 1) * (0.5 * height)
+    sx, sy, rot = params[..., 2], params[..., 3], params[..., 4]
+    c, s = xp.cos(rot), xp.sin(rot)
+    sx2, sy2 = sx * sx, sy * sy
+    cov_xx = (c * c * sx2 + s * s * sy2) * (tx * tx)
+    cov_xy = (c * s * (sx2 - sy2)) * (tx * ty)
+    l11 = xp.sqrt(cov_xx)
+    l21 = cov_xy / l11
+    l22 = (sx * sy * (tx * ty)) / l11
+    means = xp.stack([mx, my], -1)
+    chol = xp.stack([l11, l21, l22], -1)
+    return means, chol, params[..., 5:8]
+
+
+def _array_module(a):
+    if isinstance(a, np.ndarray):
+        return np
+    import torch
+    return torch
+
+
+def grid_anchors(n: int, aspect: float = 1.0) -> np.ndarray:
+    """N points in rows over [-1, 1]^2 (width / height = aspect): round(sqrt(N / aspect)) rows, each
+    holding N // rows or one more points at its cell centres, so any N covers the canvas without
+    holes. [N, 2] float32, row-major from the top-left."""
+    rows = min(n, max(1, round(math.sqrt(n / aspect))))
+    counts = np.full(rows, n // rows)
+    counts[np.round(np.linspace(0, rows - 1, n % rows)).astype(int) if n % rows else []] += 1
+    points = [np.stack([(np.arange(k) + 0.5) / k * 2 - 1, np.full(k, (r + 0.5) / rows * 2 - 1)], -1)
+              for r, k in enumerate(counts)]
+    return np.concatenate(points).astype(np.float32)
+
+
+def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
+    """Scales and rotations of the Gaussians stretched by T = diag(tx, ty): the covariance T Sigma T
+    re-factored as R diag(s^2) R^T, exactly. Means and colours are returned unchanged (means are in
+    [-1, 1] coordinates, which do not change when the canvas they refer to stretches)."""
+    cov = covariance(params[..., 2:4].astype(np.float64), params[..., 4].astype(np.float64), (tx, ty))
+    a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    theta = 0.5 * np.arctan2(2 * b, a - d)
+    c, s = np.cos(theta), np.sin(theta)
+    out = params.copy()
+    out[..., 2] = np.sqrt(np.maximum(a * c * c + 2 * b * s * c + d * s * s, 0))
+    out[..., 3] = np.sqrt(np.maximum(a * s * s - 2 * b * s * c + d * c * c, 0))
+    out[..., 4] = np.mod(theta, 2 * np.pi)
+    return out
+
+
+def tile_bounds(size: int, grid: int) -> np.ndarray:
+    """Pixel boundaries of `grid` tiles along an axis of `size` pixels: grid + 1 integers."""
+    return np.round(np.linspace(0, size, grid + 1)).astype(int)
+
+
+def merge_tiles(tile_params: np.ndarray, grid: tuple[int, int], width: int, height: int,
+                canvas: int) -> np.ndarray:
+    """Gaussians predicted per tile on a canvas x canvas canvas -> one frame of width x height.
+
+    tile_params: [rows, cols, T, N, 8] (tile (r, c) covers rows r and columns c of the
+    tile_bounds grid). Returns [T, rows * cols * N, 8] on a width x height canvas (scale in frame pixels).
+    """
+    cols, rows = grid
+    xb, yb = tile_bounds(width, cols), tile_bounds(height, rows)
+    merged = []
+    for r in range(rows):
+        for c in range(cols):
+            tw, th = xb[c + 1] - xb[c], yb[r + 1] - yb[r]
+            p = stretch_params(tile_params[r, c], tw / canvas, th / canvas)
+            p[..., 0] = (xb[c] + (p[..., 0] + 1) * 0.5 * tw) / width * 2 - 1
+            p[..., 1] = (yb[r] + (p[..., 1] + 1) * 0.5 * th) / height * 2 - 1
+            merged.append(p)
+    return np.concatenate(merged, axis=-2).astype(np.float32)

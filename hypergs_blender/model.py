@@ -1,0 +1,233 @@
+"""The HyperGS hypernetwork: a video clip in, N Gaussians per frame out, in one forward pass.
+
+    frames [B, T, c, c, 3]
+      -> 3D-conv tokenizer (kernel 1 x p x p) + learnable spatio-temporal position embedding   Z^0
+      -> ST-Transformer: L x (spatial attention with 2D RoPE, temporal attention with 1D RoPE
+         in windows of w frames, FFN), pre-LN                                                 Z^L
+      -> skip: Z = Z^L + Z^0
+      -> Q-Transformer, per frame: [patch tokens; N Gaussian tokens] through self-attention blocks
+      -> heads on the Gaussian tokens -> [B, T, N, 8] (see gaussians.PARAMS)
+
+Two parametrizations of the Gaussian tokens and heads (`ModelConfig.parametrization`):
+- "paper": N learned tokens; means tanh(h), colours sigmoid(h), rotation sigmoid(h) 2 pi,
+  scale |h| + eps (canvas pixels). As in the HyperGS paper.
+- "local" (default): Gaussian k belongs to an anchor a_k on a regular grid (`gaussians.grid_anchors`).
+  Its token is an embedding of a_k plus the skip feature Z sampled under a_k, its mean is
+  tanh(atanh(a_k) + cell * h) (an offset from the anchor, in grid cells), its scale is
+  (|h| + eps) x the grid spacing, and its colour is signed: the frame's patch-mean colour under the
+  anchor times the gain that makes overlapping kernels sum to the image, plus h. At initialisation
+  it is therefore the grid floor, and training only has to learn corrections; any N works with one
+  model, and the cost of a Gaussian token does not depend on where its Gaussian lies.
+  Q-Transformer attention uses 2D RoPE over patch centres and anchors, so tokens attend locally.
+The anchors and the cell size are inputs, so one exported model serves every Gaussian count.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+# Fraction of the grid spacing that an initial Gaussian's sigma spans, and the colour gain that then
+# makes a grid of such kernels sum to the image: spacing^2 / (2 pi sigma^2).
+INITIAL_SIGMA = 0.6
+COLOUR_GAIN = 1.0 / (2 * math.pi * INITIAL_SIGMA ** 2)
+SCALE_EPS = 1e-2
+
+
+@dataclass
+class ModelConfig:
+    canvas: int = 128
+    patch: int = 8
+    clip_frames: int = 4
+    temporal_window: int = 4
+    dim: int = 192
+    heads: int = 6
+    ffn: int = 768
+    st_layers: int = 2
+    q_layers: int = 2
+    parametrization: str = "local"
+    max_gaussians: int = 3000  # learned tokens of the "paper" parametrization
+    rope_base: float = 100.0
+
+    @property
+    def grid(self) -> int:
+        return self.canvas // self.patch
+
+
+PRESETS = {
+    "small": ModelConfig(),
+    "paper": ModelConfig(canvas=256, patch=16, clip_frames=8, temporal_window=4, dim=768, heads=12, ffn=2800,
+                         st_layers=2, q_layers=4, parametrization="paper", max_gaussians=1000),
+}
+
+
+def rope_angles(positions: torch.Tensor, dim: int, base: float) -> torch.Tensor:
+    """Rotary angles [L, dim / 2] for positions [L, k]: the dim/2 frequency slots are split evenly
+    between the k coordinates (k = 1: time; k = 2: (row, column))."""
+    k = positions.shape[-1]
+    per = dim // 2 // k
+    inv_freq = base ** (-torch.arange(per, dtype=torch.float32, device=positions.device) / per)
+    return torch.cat([positions[:, i, None].float() * inv_freq for i in range(k)], dim=-1)
+
+
+def apply_rope(x: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Rotate feature pairs (x_i, x_{i + d/2}) of x [..., L, d] by angles [L, d/2]."""
+    x1, x2 = x.chunk(2, dim=-1)
+    cos, sin = angles.cos(), angles.sin()
+    return torch.cat([x1 * cos - x2 * sin, x1 * sin + x2 * cos], dim=-1)
+
+
+class Attention(nn.Module):
+    def __init__(self, dim: int, heads: int):
+        super().__init__()
+        self.heads = heads
+        self.qkv = nn.Linear(dim, 3 * dim)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor, angles: torch.Tensor | None = None) -> torch.Tensor:
+        b, n, d = x.shape
+        q, k, v = self.qkv(x).reshape(b, n, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+        if angles is not None:
+            q, k = apply_rope(q, angles), apply_rope(k, angles)
+        y = F.scaled_dot_product_attention(q, k, v)
+        return self.proj(y.transpose(1, 2).reshape(b, n, d))
+
+
+class FeedForward(nn.Sequential):
+    def __init__(self, dim: int, hidden: int):
+        super().__init__(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, dim))
+
+
+class STBlock(nn.Module):
+    """Factorized spatio-temporal block: spatial attention per frame, temporal attention per patch
+    position within windows of `window` frames, then an FFN; each pre-LN with a residual."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.window = cfg.temporal_window
+        self.norm_s, self.spatial = nn.LayerNorm(cfg.dim), Attention(cfg.dim, cfg.heads)
+        self.norm_t, self.temporal = nn.LayerNorm(cfg.dim), Attention(cfg.dim, cfg.heads)
+        self.norm_f, self.ffn = nn.LayerNorm(cfg.dim), FeedForward(cfg.dim, cfg.ffn)
+
+    def forward(self, z: torch.Tensor, spatial_angles: torch.Tensor, temporal_angles: torch.Tensor) -> torch.Tensor:
+        b, t, p, d = z.shape
+        x = z.reshape(b * t, p, d)
+        x = x + self.spatial(self.norm_s(x), spatial_angles)
+        w = self.window
+        x = x.reshape(b, t // w, w, p, d).transpose(2, 3).reshape(b * (t // w) * p, w, d)
+        x = x + self.temporal(self.norm_t(x), temporal_angles)
+        x = x + self.ffn(self.norm_f(x))
+        return x.reshape(b, t // w, p, w, d).transpose(2, 3).reshape(b, t, p, d)
+
+
+class QBlock(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.norm_a, self.attn = nn.LayerNorm(cfg.dim), Attention(cfg.dim, cfg.heads)
+        self.norm_f, self.ffn = nn.LayerNorm(cfg.dim), FeedForward(cfg.dim, cfg.ffn)
+
+    def forward(self, x: torch.Tensor, angles: torch.Tensor | None) -> torch.Tensor:
+        x = x + self.attn(self.norm_a(x), angles)
+        return x + self.ffn(self.norm_f(x))
+
+
+class HyperGS(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        if cfg.clip_frames % cfg.temporal_window or cfg.canvas % cfg.patch:
+            raise ValueError("clip_frames must be a multiple of temporal_window and canvas of patch")
+        self.cfg = cfg
+        g, d = cfg.grid, cfg.dim
+        self.tokenizer = nn.Conv3d(3, d, kernel_size=(1, cfg.patch, cfg.patch), stride=(1, cfg.patch, cfg.patch))
+        self.pos_embed = nn.Parameter(torch.randn(1, cfg.clip_frames, g * g, d) * 0.02)
+        self.st_blocks = nn.ModuleList(STBlock(cfg) for _ in range(cfg.st_layers))
+        self.q_blocks = nn.ModuleList(QBlock(cfg) for _ in range(cfg.q_layers))
+        self.norm_out = nn.LayerNorm(d)
+        self.head = nn.Linear(d, 8)
+        rows, cols = torch.meshgrid(torch.arange(g), torch.arange(g), indexing="ij")
+        self.register_buffer("patch_rc", torch.stack([rows, cols], -1).reshape(-1, 2).float() + 0.5, persistent=False)
+        self.register_buffer("frame_index", torch.arange(cfg.temporal_window).float()[:, None], persistent=False)
+        if cfg.parametrization == "paper":
+            self.gaussian_tokens = nn.Parameter(torch.randn(cfg.max_gaussians, d) * 0.02)
+        elif cfg.parametrization == "local":
+            self.anchor_embed = nn.Sequential(nn.Linear(4 * 8, d), nn.GELU(), nn.Linear(d, d))
+            # Start at the grid floor: zero offsets and colour residuals, sigma = INITIAL_SIGMA cells.
+            nn.init.zeros_(self.head.weight)
+            with torch.no_grad():
+                self.head.weight[2:4].normal_(0, 1e-3)
+                self.head.bias.copy_(torch.tensor([0, 0, INITIAL_SIGMA - SCALE_EPS, INITIAL_SIGMA - SCALE_EPS,
+                                                   0, 0, 0, 0]))
+        else:
+            raise ValueError(f"unknown parametrization {cfg.parametrization!r}")
+
+    def forward(self, frames: torch.Tensor, anchors: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:
+        """frames [B, T, c, c, 3] in [0, 1]; anchors [N, 2] in [-1, 1]; cell [1]: the anchor grid
+        spacing in [-1, 1] units (2 / sqrt(N) on a square grid). Returns params [B, T, N, 8]."""
+        cfg = self.cfg
+        b, t = frames.shape[:2]
+        g, d = cfg.grid, cfg.dim
+        x = frames.permute(0, 4, 1, 2, 3)  # [B, 3, T, c, c]
+        z0 = self.tokenizer((x - 0.5) * 4).flatten(3).permute(0, 2, 3, 1) + self.pos_embed  # [B, T, P, d]
+        spatial_angles = rope_angles(self.patch_rc, d // cfg.heads, cfg.rope_base)
+        temporal_angles = rope_angles(self.frame_index, d // cfg.heads, cfg.rope_base)
+        z = z0
+        for block in self.st_blocks:
+            z = block(z, spatial_angles, temporal_angles)
+        z = (z + z0).reshape(b * t, g * g, d)
+
+        n = anchors.shape[0]
+        if cfg.parametrization == "paper":
+            tokens = self.gaussian_tokens[:n].expand(b * t, n, d)
+            angles = None
+        else:
+            sample_at = anchors.reshape(1, 1, n, 2).expand(b * t, 1, n, 2)
+            feature_map = z.transpose(1, 2).reshape(b * t, d, g, g)
+            under_anchor = F.grid_sample(feature_map, sample_at, align_corners=False).reshape(b * t, d, n)
+            tokens = under_anchor.transpose(1, 2) + self.anchor_embed(fourier_features(anchors))
+            anchor_rc = (anchors.flip(-1) + 1) * (0.5 * g)  # (row, column) in patch units
+            angles = rope_angles(torch.cat([self.patch_rc, anchor_rc]), d // cfg.heads, cfg.rope_base)
+        h = torch.cat([z, tokens], dim=1)
+        for block in self.q_blocks:
+            h = block(h, angles)
+        h = self.head(self.norm_out(h[:, g * g:])).reshape(b, t, n, 8)
+
+        if cfg.parametrization == "paper":
+            means = torch.tanh(h[..., 0:2])
+            scales = h[..., 2:4].abs() + SCALE_EPS
+            colours = torch.sigmoid(h[..., 5:8])
+        else:
+            base = torch.atanh(anchors.clamp(-0.999, 0.999))
+            means = torch.tanh(base + cell * h[..., 0:2])
+            spacing_px = cell * (0.5 * cfg.canvas)
+            scales = (h[..., 2:4].abs() + SCALE_EPS) * spacing_px
+            patch_mean = F.avg_pool2d(x.reshape(b, 3 * t, cfg.canvas, cfg.canvas), cfg.patch)
+            sample_at = anchors.reshape(1, 1, n, 2).expand(b, 1, n, 2)
+            under = F.grid_sample(patch_mean, sample_at, align_corners=False).reshape(b, 3, t, n)
+            colours = COLOUR_GAIN * under.permute(0, 2, 3, 1) + h[..., 5:8]
+        rotation = torch.sigmoid(h[..., 4:5]) * (2 * math.pi)
+        return torch.cat([means, scales, rotation, colours], dim=-1)
+
+
+def fourier_features(xy: torch.Tensor, bands: int = 8) -> torch.Tensor:
+    """[N, 2] -> [N, 4 * bands] sin/cos of the coordinates at octave frequencies."""
+    freqs = (2.0 ** torch.arange(bands, dtype=xy.dtype, device=xy.device)) * math.pi
+    angles = (xy[..., None] * freqs).flatten(-2)
+    return torch.cat([angles.sin(), angles.cos()], dim=-1)
+
+
+def anchor_inputs(n: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The anchors and cell size the model takes for N Gaussians per frame (square canvas)."""
+    from .gaussians import grid_anchors
+    anchors = torch.from_numpy(grid_anchors(n)).to(device)
+    return anchors, torch.tensor([2.0 / math.sqrt(n)], device=device)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def config_dict(cfg: ModelConfig) -> dict:
+    return asdict(cfg)

@@ -1,0 +1,165 @@
+"""GaussianVideo <-> USD (usd-core): one UsdGeomPoints prim with a time sample per frame.
+
+Layout written by `export_usd`:
+  /GaussianVideo               Xform, the stage's default prim
+  /GaussianVideo/Gaussians     Points, customData["hypergs"] = {version, canvas_width, canvas_height,
+                               grid, source (JSON text)}
+    points                     per frame: (x * W/2, -y * H/2, 0): canvas pixels, origin at the canvas
+                               centre, Y up (the stage is Y up, metersPerUnit 0.01)
+    widths                     per frame: 2 * sqrt(scale_x * scale_y), the diameter of the circle with the
+                               Gaussian's 1-sigma area, in the same pixel units
+    primvars:scale             float2, vertex: scale x, y in canvas pixels (exact)
+    primvars:rotation          float, vertex: rotation in radians in the image convention (y down); in
+                               the Y-up stage the ellipse's angle is -rotation
+    primvars:displayColor      color3f, vertex: the additive r, g, b (sRGB-encoded, may leave [0, 1])
+    ids                        0..N-1: Gaussian i is the same Gaussian in every frame
+  stage: timeCodesPerSecond = framesPerSecond = fps, frames start_frame .. start_frame + T - 1
+
+`import_usd` reads that prim back into a GaussianVideo (float32: exact up to float rounding of the
+position mapping). The suffix picks the file format: .usd / .usdc binary, .usda text.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .errors import HyperGSError
+from .gaussians import NUM_PARAMS, GaussianVideo
+
+ROOT_PATH = "/GaussianVideo"
+PRIM_PATH = "/GaussianVideo/Gaussians"
+METADATA_KEY = "hypergs"
+USD_VERSION = 1
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
+
+
+class UsdError(HyperGSError):
+    """A USD file that cannot be written or read as a Gaussian video."""
+
+
+def export_usd(video: GaussianVideo, path, start_frame: int = 1, prim_path: str = PRIM_PATH) -> None:
+    """Write the clip as a UsdGeomPoints prim with one time sample per frame."""
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    path = Path(path)
+    if path.suffix.lower() not in USD_SUFFIXES:
+        raise UsdError(f"{path}: a USD file must end in {', '.join(USD_SUFFIXES)}")
+    if video.num_frames == 0:
+        raise UsdError("cannot export an empty clip (no frames)")
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    stage.SetTimeCodesPerSecond(video.fps)
+    stage.SetFramesPerSecond(video.fps)
+    stage.SetStartTimeCode(start_frame)
+    stage.SetEndTimeCode(start_frame + video.num_frames - 1)
+    root_path = str(Sdf.Path(prim_path).GetParentPath())
+    if root_path not in ("", "/"):
+        stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root_path).GetPrim())
+    points = UsdGeom.Points.Define(stage, prim_path)
+    prim = points.GetPrim()
+    prim.SetCustomDataByKey(METADATA_KEY, {
+        "version": USD_VERSION, "canvas_width": int(video.canvas_width), "canvas_height": int(video.canvas_height),
+        "grid": Vt.IntArray([int(g) for g in video.grid]), "source": json.dumps(video.source, default=str)})
+    primvars = UsdGeom.PrimvarsAPI(prim)
+    scale = primvars.CreatePrimvar("scale", Sdf.ValueTypeNames.Float2Array, UsdGeom.Tokens.vertex)
+    rotation = primvars.CreatePrimvar("rotation", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
+    color = points.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+    points.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(video.num_gaussians, dtype=np.int64)))
+    half = np.array([video.canvas_width / 2, -video.canvas_height / 2])
+    for t in range(video.num_frames):
+        p = video.params[t].astype(np.float64)
+        time = float(start_frame + t)
+        pos = np.zeros((video.num_gaussians, 3), np.float32)
+        pos[:, :2] = p[:, :2] * half
+        widths = (2 * np.sqrt(p[:, 2] * p[:, 3])).astype(np.float32)
+        points.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(pos), time)
+        points.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(widths), time)
+        if video.num_gaussians:
+            r = widths[:, None] / 2
+            extent = np.stack([(pos - r).min(0), (pos + r).max(0)]).astype(np.float32)
+            points.GetExtentAttr().Set(Vt.Vec3fArray.FromNumpy(extent), time)
+        scale.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 2:4])), time)
+        rotation.Set(Vt.FloatArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 4])), time)
+        color.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 5:8])), time)
+    try:
+        ok = stage.GetRootLayer().Export(str(path))
+    except Exception as e:  # pxr raises Tf.ErrorException
+        raise UsdError(f"{path}: cannot write USD ({e})") from e
+    if not ok:
+        raise UsdError(f"{path}: cannot write USD")
+
+
+def find_gaussian_prim(stage, prim_path: str | None = None):
+    """The Points prim written by export_usd (or the one at prim_path)."""
+    from pxr import UsdGeom
+
+    if prim_path is not None:
+        prim = stage.GetPrimAtPath(prim_path)
+        if not prim or not prim.IsA(UsdGeom.Points):
+            raise UsdError(f"no UsdGeomPoints prim at {prim_path}")
+        return prim
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Points) and prim.GetCustomDataByKey(METADATA_KEY) is not None:
+            return prim
+    raise UsdError("no Gaussian video in this USD file (no UsdGeomPoints prim with HyperGS metadata)")
+
+
+def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
+    """Read a Gaussian video written by export_usd back (frames in time-sample order)."""
+    from pxr import Tf, Usd, UsdGeom
+
+    path = Path(path)
+    if not path.is_file():
+        raise UsdError(f"{path}: no such file")
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Tf.ErrorException as e:
+        raise UsdError(f"{path}: not a readable USD file ({str(e).strip().splitlines()[-1]})") from e
+    if stage is None:
+        raise UsdError(f"{path}: not a readable USD file")
+    try:
+        prim = find_gaussian_prim(stage, prim_path)
+    except UsdError as e:
+        raise UsdError(f"{path}: {e}") from None
+    meta = prim.GetCustomDataByKey(METADATA_KEY) or {}
+    try:
+        width, height = int(meta["canvas_width"]), int(meta["canvas_height"])
+        grid = tuple(int(g) for g in meta.get("grid", (1, 1)))
+        source = json.loads(meta.get("source", "{}"))
+    except (KeyError, TypeError, ValueError) as e:
+        raise UsdError(f"{path}: damaged HyperGS metadata on {prim.GetPath()} ({e})") from e
+    if width <= 0 or height <= 0 or len(grid) != 2:
+        raise UsdError(f"{path}: damaged HyperGS metadata on {prim.GetPath()}")
+    points = UsdGeom.Points(prim)
+    primvars = UsdGeom.PrimvarsAPI(prim)
+    attrs = {"points": points.GetPointsAttr(), "scale": primvars.GetPrimvar("scale").GetAttr(),
+             "rotation": primvars.GetPrimvar("rotation").GetAttr(),
+             "color": points.GetDisplayColorPrimvar().GetAttr()}
+    missing = [name for name, attr in attrs.items() if not attr]
+    if missing:
+        raise UsdError(f"{path}: {prim.GetPath()} lacks {', '.join(missing)}")
+    times = attrs["points"].GetTimeSamples() or [Usd.TimeCode.Default()]
+    frames = []
+    half = np.array([width / 2, -height / 2])
+    for time in times:
+        values = {name: attr.Get(time) for name, attr in attrs.items()}
+        if any(v is None for v in values.values()):
+            raise UsdError(f"{path}: frame at time {time} lacks some of {', '.join(attrs)}")
+        pos = np.asarray(values["points"], np.float64).reshape(-1, 3)
+        n = len(pos)
+        frame = np.empty((n, NUM_PARAMS), np.float32)
+        try:
+            frame[:, 0:2] = pos[:, :2] / half
+            frame[:, 2:4] = np.asarray(values["scale"], np.float32).reshape(n, 2)
+            frame[:, 4] = np.asarray(values["rotation"], np.float32).reshape(n)
+            frame[:, 5:8] = np.asarray(values["color"], np.float32).reshape(n, 3)
+        except ValueError:
+            raise UsdError(f"{path}: frame at time {time}: primvar sizes do not match the {n} points") from None
+        if frames and n != frames[0].shape[0]:
+            raise UsdError(f"{path}: the number of points changes over time ({frames[0].shape[0]} then {n})")
+        frames.append(frame)
+    fps = stage.GetTimeCodesPerSecond() or 24.0
+    return GaussianVideo(np.stack(frames), width, height, float(fps), grid, source)

@@ -1,0 +1,135 @@
+"""Video input with PyAV: streamed decoding, frame ranges, uniform T-frame sampling, and the
+short-side resize + centre crop that maps any frame to the network's square canvas."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import VideoError
+
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    path: str
+    width: int
+    height: int
+    fps: float
+    num_frames: int
+
+
+def _open(path):
+    import av
+
+    path = Path(path)
+    if not path.is_file():
+        raise VideoError(f"{path}: no such video file")
+    try:
+        container = av.open(str(path))
+    except (av.error.FFmpegError, UnicodeDecodeError) as e:
+        raise VideoError(f"{path}: not a readable video ({e})") from e
+    if not container.streams.video:
+        container.close()
+        raise VideoError(f"{path}: has no video stream")
+    stream = container.streams.video[0]
+    stream.thread_type = "AUTO"
+    return container, stream
+
+
+def probe(path) -> VideoInfo:
+    """Size, frame rate and frame count. Counts by decoding when the container does not say."""
+    import av
+
+    container, stream = _open(path)
+    with container:
+        fps = float(stream.average_rate or stream.guessed_rate or 24)
+        width, height = stream.codec_context.width, stream.codec_context.height
+        count = stream.frames
+        if count <= 0:
+            try:
+                count = sum(1 for _ in container.decode(stream))
+            except av.error.FFmpegError as e:
+                raise VideoError(f"{path}: cannot decode video ({e})") from e
+    if count <= 0 or width <= 0 or height <= 0:
+        raise VideoError(f"{path}: video has no decodable frames")
+    return VideoInfo(str(path), width, height, fps, count)
+
+
+def sample_indices(num_available: int, num_frames: int | None, start: int = 0, stop: int | None = None) -> list[int]:
+    """Frame indices in [start, stop): all of them, or `num_frames` spread uniformly."""
+    stop = num_available if stop is None else min(stop, num_available)
+    if not 0 <= start < stop:
+        raise VideoError(f"empty frame range [{start}, {stop}) of a {num_available}-frame video")
+    if num_frames is None or num_frames >= stop - start:
+        return list(range(start, stop))
+    return np.round(np.linspace(start, stop - 1, num_frames)).astype(int).tolist()
+
+
+def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield (index, frame) with frame uint8 [H, W, 3] RGB, decoding one frame at a time.
+
+    indices: sorted frame indices to yield (None: every frame). size: short side resized to `size`
+    and the frame centre-cropped to size x size (None: native size).
+    """
+    import av
+
+    wanted = None if indices is None else sorted(set(indices))
+    container, stream = _open(path)
+    with container:
+        try:
+            position = 0
+            for index, frame in enumerate(container.decode(stream)):
+                if wanted is not None:
+                    if position >= len(wanted):
+                        break
+                    if index != wanted[position]:
+                        continue
+                    position += 1
+                yield index, to_canvas(frame, size)
+        except av.error.FFmpegError as e:
+            raise VideoError(f"{path}: cannot decode video ({e})") from e
+    if wanted is not None and position < len(wanted):
+        raise VideoError(f"{path}: frame {wanted[position]} is past the end of the video")
+
+
+def to_canvas(frame, size: int | None) -> np.ndarray:
+    """An av.VideoFrame as RGB uint8; resized (short side = size, area filter) and centre-cropped."""
+    if size is None:
+        return frame.to_ndarray(format="rgb24")
+    w, h = frame.width, frame.height
+    scale = size / min(w, h)
+    rw, rh = max(size, round(w * scale)), max(size, round(h * scale))
+    rgb = frame.to_ndarray(format="rgb24", width=rw, height=rh, interpolation="AREA")
+    y0, x0 = (rh - size) // 2, (rw - size) // 2
+    return np.ascontiguousarray(rgb[y0:y0 + size, x0:x0 + size])
+
+
+def resize_crop(image: np.ndarray, size: int) -> np.ndarray:
+    """The same short-side resize + centre crop for an RGB uint8 array (e.g. a ground-truth frame)."""
+    import av
+
+    frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
+    return to_canvas(frame, size)
+
+
+def read_clip(path, num_frames: int | None = None, start: int = 0, stop: int | None = None,
+              size: int | None = None) -> tuple[np.ndarray, VideoInfo, list[int]]:
+    """Decode `num_frames` uniformly sampled frames of [start, stop) as uint8 [T, H, W, 3]."""
+    info = probe(path)
+    indices = sample_indices(info.num_frames, num_frames, start, stop)
+    frames = np.stack([f for _, f in iter_frames(path, indices, size)])
+    return frames, info, indices
+
+
+def resize_exact(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """RGB uint8 array resized to exactly width x height (area filter; aspect not kept)."""
+    import av
+
+    if image.shape[1] == width and image.shape[0] == height:
+        return image
+    frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
+    return frame.to_ndarray(format="rgb24", width=width, height=height, interpolation="AREA")

@@ -1,0 +1,40 @@
+"""Per-object HyperGS settings (`Object.hypergs`): what the clip is, how it was encoded, its timing."""
+import bpy
+from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+
+GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (more: sharper, slower)",
+                      default=1000, min=250, max=3000)
+PATCH_GRID = dict(name="Patch Grid", description="Encode the frame as N x N tiles (more: finer detail)",
+                  default=1, min=1, max=5)
+
+
+def _timing_changed(self, context):
+    from . import scene
+    scene.sync_timing(self.id_data)
+
+
+class HyperGSClipSettings(bpy.types.PropertyGroup):
+    is_clip: BoolProperty(name="HyperGS Clip", default=False)
+    source: StringProperty(name="Source", subtype="FILE_PATH", description="The video the clip was encoded from")
+    source_start: IntProperty(name="First Source Frame", default=0, min=0,
+                              description="Index of the clip's first frame in the source video")
+    num_frames: IntProperty(name="Frames", default=0, min=0)
+    gaussians_per_frame: IntProperty(name="Gaussians per Frame", default=0, min=0)
+    grid: IntProperty(name="Encoded Grid", default=1, min=1)
+    psnr: FloatProperty(name="PSNR", description="Measured at encode time against the source frames (dB)",
+                        default=0.0, precision=2)
+    encoder: StringProperty(name="Encoder")
+    encode_seconds: FloatProperty(name="Encode Time", default=0.0, precision=1, subtype="TIME_ABSOLUTE")
+    canvas_width: IntProperty(name="Width", default=0, min=0)
+    canvas_height: IntProperty(name="Height", default=0, min=0)
+    fps: FloatProperty(name="Source FPS", default=24.0, min=0.001)
+    frame_start: IntProperty(name="Start Frame", description="Scene frame that shows the clip's first frame",
+                             default=1, update=_timing_changed)
+    speed: FloatProperty(name="Speed", description="Clip frames per scene frame", default=1.0, min=0.001,
+                         update=_timing_changed)
+    # Settings for the next Re-encode.
+    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
+    patch_grid: IntProperty(**PATCH_GRID)
+
+
+CLASSES = [HyperGSClipSettings]

@@ -1,0 +1,266 @@
+"""Writing clips into the scene (main thread only).
+
+Storage: one mesh object per clip. Its vertices are the Gaussians of every frame (position on the
+image plane, and point attributes `scale`, `rotation`, `color`, `frame`: see hypergs_blender/points.py),
+and a Geometry Nodes modifier built here ("HyperGS Frames") keeps only the points whose `frame` is
+the clip frame for the scene frame, then adds a point cloud of them so they show in Solid mode.
+Why one mesh and not one mesh per frame: it is plain data (no frame-change handler has to run, so it
+renders the same with or without the add-on's handlers, on a farm too), it saves and reloads with
+the .blend, Edit Mode edits and further Geometry Nodes modifiers apply per frame through the `frame`
+attribute, and the render engine reads the depsgraph-evaluated mesh, i.e. exactly what is shown.
+"""
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+
+from ..hypergs_blender.gaussians import GaussianVideo
+from ..hypergs_blender.points import params_to_points
+
+NODE_GROUP = "HyperGS Frames"
+MODIFIER = "HyperGS Frames"
+VIEW_TRANSFORM = "Standard"
+# Node group inputs: name -> (socket type, default)
+INPUTS = {
+    "Start Frame": ("NodeSocketInt", 1),
+    "Speed": ("NodeSocketFloat", 1.0),
+    "Show Points": ("NodeSocketBool", True),
+    "Point Size": ("NodeSocketFloat", 1.0),
+}
+
+
+def write_points(mesh, points: dict) -> None:
+    """Fill an empty mesh with vertices carrying the clip's point attributes (float32, foreach_set)."""
+    n = len(points["position"])
+    mesh.vertices.add(n)
+    mesh.attributes["position"].data.foreach_set("vector", points["position"].ravel())
+    for name, kind, key in (("scale", "FLOAT2", "vector"), ("rotation", "FLOAT", "value"),
+                            ("color", "FLOAT_COLOR", "color"), ("frame", "INT", "value")):
+        attribute = mesh.attributes.new(name, kind, "POINT")
+        attribute.data.foreach_set(key, np.ascontiguousarray(points[name]).ravel())
+    mesh.update()
+    try:  # make `color` the attribute that Mesh > Set Attribute and the colour display act on
+        mesh.attributes.active_color = mesh.attributes["color"]
+        mesh.attributes.active = mesh.attributes["color"]
+    except (AttributeError, TypeError, KeyError):
+        pass
+
+
+def new_clip_mesh(name: str, video: GaussianVideo):
+    mesh = bpy.data.meshes.new(name)
+    write_points(mesh, params_to_points(video.params, video.canvas_width, video.canvas_height))
+    return mesh
+
+
+def _socket(sockets, name, kind=None):
+    for s in sockets:
+        if s.name == name and (kind is None or s.type == kind) and getattr(s, "enabled", True):
+            return s
+    for s in sockets:  # sockets hidden for the current mode still connect
+        if s.name == name and (kind is None or s.type == kind):
+            return s
+    raise KeyError(name)
+
+
+def frame_node_group():
+    """The shared node group: delete points of other frames; optionally add a point cloud to show them."""
+    group = bpy.data.node_groups.get(NODE_GROUP)
+    if group is not None and group.bl_idname == "GeometryNodeTree" and _group_inputs_ok(group):
+        return group
+    group = bpy.data.node_groups.new(NODE_GROUP, "GeometryNodeTree")
+    if hasattr(group, "is_modifier"):
+        group.is_modifier = True
+    iface = group.interface
+    iface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    for name, (kind, default) in INPUTS.items():
+        socket = iface.new_socket(name, in_out="INPUT", socket_type=kind)
+        socket.default_value = default
+    iface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = group.nodes, group.links
+
+    def node(kind, x, y, **props):
+        n = nodes.new(kind)
+        n.location = (x, y)
+        for k, v in props.items():
+            setattr(n, k, v)
+        return n
+
+    gin = node("NodeGroupInput", -900, 0)
+    gout = node("NodeGroupOutput", 700, 0)
+    time = node("GeometryNodeInputSceneTime", -900, -250)
+    # clip frame = floor((scene frame - start) * speed + 1e-4)
+    sub = node("ShaderNodeMath", -700, -200, operation="SUBTRACT")
+    links.new(_socket(time.outputs, "Frame"), sub.inputs[0])
+    links.new(_socket(gin.outputs, "Start Frame"), sub.inputs[1])
+    mad = node("ShaderNodeMath", -530, -200, operation="MULTIPLY_ADD")
+    links.new(sub.outputs[0], mad.inputs[0])
+    links.new(_socket(gin.outputs, "Speed"), mad.inputs[1])
+    mad.inputs[2].default_value = 1e-4
+    flo = node("ShaderNodeMath", -360, -200, operation="FLOOR")
+    links.new(mad.outputs[0], flo.inputs[0])
+    attr = node("GeometryNodeInputNamedAttribute", -360, -380, data_type="FLOAT")
+    _socket(attr.inputs, "Name").default_value = "frame"
+    cmp = node("FunctionNodeCompare", -180, -250, data_type="FLOAT", operation="NOT_EQUAL")
+    links.new(_socket(attr.outputs, "Attribute"), _socket(cmp.inputs, "A", "VALUE"))
+    links.new(flo.outputs[0], _socket(cmp.inputs, "B", "VALUE"))
+    _socket(cmp.inputs, "Epsilon").default_value = 0.5
+    delete = node("GeometryNodeDeleteGeometry", 0, 0, domain="POINT")
+    links.new(_socket(gin.outputs, "Geometry"), _socket(delete.inputs, "Geometry"))
+    links.new(_socket(cmp.outputs, "Result"), _socket(delete.inputs, "Selection"))
+    # Display: a point cloud of the frame's points, radius = mean sigma x Point Size.
+    scale = node("GeometryNodeInputNamedAttribute", -180, -500, data_type="FLOAT_VECTOR")
+    _socket(scale.inputs, "Name").default_value = "scale"
+    dot = node("ShaderNodeVectorMath", 0, -450, operation="DOT_PRODUCT")
+    links.new(_socket(scale.outputs, "Attribute"), dot.inputs[0])
+    dot.inputs[1].default_value = (0.5, 0.5, 0.0)
+    radius = node("ShaderNodeMath", 180, -450, operation="MULTIPLY")
+    links.new(_socket(dot.outputs, "Value"), radius.inputs[0])
+    links.new(_socket(gin.outputs, "Point Size"), radius.inputs[1])
+    to_points = node("GeometryNodeMeshToPoints", 200, -200, mode="VERTICES")
+    links.new(_socket(delete.outputs, "Geometry"), _socket(to_points.inputs, "Mesh"))
+    links.new(radius.outputs[0], _socket(to_points.inputs, "Radius"))
+    switch = node("GeometryNodeSwitch", 380, -200, input_type="GEOMETRY")
+    links.new(_socket(gin.outputs, "Show Points"), _socket(switch.inputs, "Switch"))
+    links.new(_socket(to_points.outputs, "Points"), _socket(switch.inputs, "True"))
+    join = node("GeometryNodeJoinGeometry", 540, 0)
+    links.new(_socket(switch.outputs, "Output"), join.inputs[0])
+    links.new(_socket(delete.outputs, "Geometry"), join.inputs[0])
+    links.new(join.outputs[0], _socket(gout.inputs, "Geometry"))
+    return group
+
+
+def _group_inputs_ok(group) -> bool:
+    names = {item.name for item in group.interface.items_tree
+             if item.item_type == "SOCKET" and item.in_out == "INPUT"}
+    return set(INPUTS) <= names
+
+
+def _input_ids(group) -> dict:
+    return {item.name: item.identifier for item in group.interface.items_tree
+            if item.item_type == "SOCKET" and item.in_out == "INPUT"}
+
+
+def frame_modifier(obj):
+    for mod in obj.modifiers:
+        if mod.type == "NODES" and mod.node_group is not None and mod.node_group.name.startswith(NODE_GROUP):
+            return mod
+    return None
+
+
+def sync_timing(obj) -> None:
+    """Copy the object's frame_start and speed into its frame modifier."""
+    mod = frame_modifier(obj)
+    if mod is None:
+        return
+    ids = _input_ids(mod.node_group)
+    mod[ids["Start Frame"]] = int(obj.hypergs.frame_start)
+    mod[ids["Speed"]] = float(obj.hypergs.speed)
+    obj.update_tag()
+
+
+def add_frame_modifier(obj):
+    mod = obj.modifiers.new(MODIFIER, "NODES")
+    mod.node_group = frame_node_group()
+    sync_timing(obj)
+    return mod
+
+
+def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, encoder: str,
+                   source: str, source_start: int) -> None:
+    s = obj.hypergs
+    s.is_clip = True
+    s.source = source
+    s.source_start = source_start
+    s.num_frames = video.num_frames
+    s.gaussians_per_frame = video.num_gaussians
+    s.grid = video.grid[0]
+    s.gaussian_count = video.num_gaussians  # clamped to the property's range
+    s.patch_grid = video.grid[0]
+    s.psnr = psnr
+    s.encoder = encoder
+    s.encode_seconds = seconds
+    s.canvas_width, s.canvas_height = video.canvas_width, video.canvas_height
+    s.fps = video.fps
+
+
+def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_start: int, speed: float,
+                       **settings):
+    """A new clip object in `collection`: mesh, settings, frame modifier. Returns it.
+    On any failure what it made is removed again, so the scene is left as it was."""
+    made = []
+    try:
+        mesh = new_clip_mesh(name, video)
+        made.append((bpy.data.meshes, mesh))
+        obj = bpy.data.objects.new(name, mesh)
+        made.insert(0, (bpy.data.objects, obj))
+        # The image plane lies in the object's XY plane; standing it up shows it in the front view.
+        obj.rotation_euler = (math.pi / 2, 0.0, 0.0)
+        store_settings(obj, video, **settings)
+        obj.hypergs.frame_start = frame_start  # before the modifier: its update has nothing to sync
+        obj.hypergs.speed = speed
+        groups_before = set(bpy.data.node_groups.keys())
+        mod = add_frame_modifier(obj)
+        if mod.node_group.name not in groups_before:
+            made.append((bpy.data.node_groups, mod.node_group))
+        collection.objects.link(obj)
+    except BaseException:
+        for datablocks, block in made:
+            datablocks.remove(block)
+        raise
+    return obj
+
+
+def replace_clip_mesh(obj, video: GaussianVideo, **settings) -> None:
+    """Re-encode result: a new mesh for the object (modifiers and timing kept)."""
+    old = obj.data
+    name = old.name
+    mesh = new_clip_mesh(name, video)
+    obj.data = mesh
+    if old.users == 0:
+        bpy.data.meshes.remove(old)
+        mesh.name = name
+    store_settings(obj, video, **settings)
+    sync_timing(obj)
+
+
+def select_only(context, obj) -> None:
+    if context.mode != "OBJECT":
+        return
+    for other in context.view_layer.objects:
+        if other.select_get():
+            other.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+
+
+def prepare_scene(scene) -> list[str]:
+    """Render settings the clips need; returns what was changed, to tell the user."""
+    changed = []
+    if scene.render.engine != "HYPERGS":
+        scene.render.engine = "HYPERGS"
+        changed.append("render engine to HyperGS")
+    vs = scene.view_settings
+    if vs.view_transform != VIEW_TRANSFORM or vs.look != "None" or vs.exposure != 0 or vs.gamma != 1:
+        vs.view_transform = VIEW_TRANSFORM
+        vs.look = "None"
+        vs.exposure = 0.0
+        vs.gamma = 1.0
+        changed.append("view transform to Standard (so renders give back the video's colours)")
+    if scene.camera is None:
+        scene.camera = _new_camera(scene)
+        changed.append("added a camera (F12 needs one)")
+    return changed
+
+
+def _new_camera(scene):
+    cam = bpy.data.cameras.new("HyperGS Camera")
+    cam.type = "ORTHO"
+    aspect = scene.render.resolution_x / max(1, scene.render.resolution_y)
+    cam.ortho_scale = 2.0 * max(aspect, 1.0)
+    obj = bpy.data.objects.new("HyperGS Camera", cam)
+    obj.location = (0.0, -6.0, 0.0)
+    obj.rotation_euler = (math.pi / 2, 0.0, 0.0)
+    scene.collection.objects.link(obj)
+    return obj

@@ -1,0 +1,673 @@
+"""The extension in the real bpy 5.0.1 wheel: install the built zip into a throw-away user directory,
+convert a movie strip, render with F12, edit points, Geometry Nodes, save/reload, errors, cancel.
+
+bpy can be imported once per process, so one Blender session runs in a subprocess (this file run as
+a script, with torch and numba made unimportable, as in Blender's own Python) and writes what it
+measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
+$HYPERGS_BLENDER_PYTHON runs the session with another Python that has bpy (e.g. bpy 4.2 LTS).
+"""
+import json
+import os
+import subprocess
+import sys
+import traceback
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TENNIS = ROOT.parent / "shared" / "videos" / "davis_tennis.mp4"
+# The encoder the session converts with; "floor" until the bundled network's weights land, then "bundled".
+ENCODER = "floor"
+GAUSSIANS = 1000
+RENDER_FRAMES = (1, 35, 70)  # scene frames; the strip starts at frame 1, so source index = frame - 1
+SIZES = ((256, 256), (864, 480))
+PSNR_MARGIN = 0.3  # dB the F12 render may lose to the core's own encode -> render (8-bit PNG, dither)
+SESSION_TIMEOUT = 600
+
+
+# ----------------------------------------------------------------------------------------------------
+# pytest side
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    if not TENNIS.is_file():
+        pytest.skip(f"{TENNIS} is missing")
+    work = tmp_path_factory.mktemp("blender")
+    sys.path.insert(0, str(ROOT / "tools"))
+    import blender_main_job
+    zip_path = blender_main_job.build_zip(work / "dist")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", ENCODER))
+    out = work / "session.json"
+    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
+    proc = subprocess.run([python, __file__, str(zip_path), str(work), str(out)], env=env,
+                          capture_output=True, text=True, timeout=SESSION_TIMEOUT)
+    if not out.is_file():
+        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return json.loads(out.read_text())
+
+
+def step(session, name):
+    result = session.get(name)
+    assert result is not None, f"step {name} did not run"
+    assert "error" not in result, result["error"]
+    return result
+
+
+def test_install_and_enable(session):
+    r = step(session, "install")
+    assert r["module"].startswith("bl_ext.user_default.hypergs")
+    assert "/extensions/user_default/hypergs/" in r["file"]
+    assert r["operators"] == ["convert_strip", "edit_frame", "import_video", "reencode"]
+    assert r["engine"] and not r["torch_importable"]
+
+
+@pytest.mark.parametrize("case", ["corrupt_video", "truncated_video", "text_as_mp4", "missing_file", "no_strip",
+                                  "not_a_movie_strip"])
+def test_errors_are_reported_and_change_nothing(session, case):
+    r = step(session, "errors")[case]
+    assert r["raised"], "the error must reach the user (a RuntimeError from bpy.ops in background mode)"
+    assert "Traceback" not in r["message"]
+    assert r["expect"].lower() in r["message"].lower(), r["message"]
+    assert r["unchanged"], r["diff"]
+
+
+def test_bundled_network_loads_without_torch_or_says_why(session):
+    r = step(session, "bundled_encoder")
+    if r["has_onnx"]:  # the packaged ONNX model runs on onnxruntime (torch is not importable here)
+        assert r["problem"] is None and r["encoder"] == "OnnxEncoder", r["problem"]
+    else:
+        assert r["problem"].startswith("HyperGSError") and r["raised"] and r["unchanged"], r
+
+
+def test_cancelled_import_changes_nothing(session):
+    r = step(session, "cancel")
+    assert r["result"] == ["CANCELLED"]
+    assert r["progress_calls"] >= 1 and r["unchanged"], r["diff"]
+    assert r["thread_job_cancelled"]
+
+
+def test_import_video(session):
+    r = step(session, "import_video")
+    assert r["result"] == ["FINISHED"]
+    assert (r["num_frames"], r["gaussians_per_frame"], r["grid"]) == (60, 500, 2)
+    assert r["frame_start"] == r["scene_frame_start"] and r["active"] == "sample"
+    assert r["camera"] == "HyperGS Camera"  # F12 needs one; the scene had none
+    assert r["display_points"] in (None, 500)
+
+
+def test_convert_strip_keeps_timing(session):
+    r = step(session, "convert")
+    assert r["result"] == ["FINISHED"]
+    assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == 70 * GAUSSIANS
+    assert r["frame_start"] == 1 and r["canvas"] == [432, 240] and r["fps"] == pytest.approx(24)
+    assert r["evaluated_vertices"] == GAUSSIANS
+    assert r["strip_muted"] and r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
+    assert not r["use_sequencer"]  # Blender 4.2 renders muted strips (black) instead of the scene
+    assert r["attributes"] == {"color": "FLOAT_COLOR", "frame": "INT", "rotation": "FLOAT", "scale": "FLOAT2"}
+    assert r["psnr"] > 10 and abs(r["psnr"] - r["reference_psnr"]) < 1.0
+    assert r["display_points"] in (None, GAUSSIANS)  # a point cloud shows the frame in Solid mode
+
+
+def test_ctrl_f12_renders_the_animation(session):
+    r = step(session, "animation")
+    assert r["files"] == ["f_0001.png", "f_0002.png", "f_0003.png"]
+    assert r["first_vs_last_psnr"] < 60  # the frames follow the clip
+
+
+@pytest.mark.parametrize("size", [f"{w}x{h}" for w, h in SIZES])
+def test_f12_matches_the_source(session, size):
+    r = step(session, "render")[size]
+    for frame in map(str, RENDER_FRAMES):
+        f = r[frame]
+        assert f["size"] == [int(v) for v in size.split("x")][::-1]
+        # What the core's encode -> render reaches with the same encoder, minus a small margin.
+        assert f["psnr_source"] > f["psnr_reference"] - PSNR_MARGIN, f
+        # The F12 PNG is the core's render (exact stretched covariance), up to 8-bit output.
+        assert f["psnr_vs_core"] > 40, f
+
+
+def test_moving_a_point_in_edit_mode_changes_the_render_there(session):
+    r = step(session, "move_point")
+    assert r["changed_near_old"] > 0.01 and r["changed_near_new"] > 0.01
+    assert r["max_change_far"] < 2 / 255
+    assert r["psnr_vs_core_edited"] > 40
+    assert r["other_frame_unchanged"]
+
+
+def test_delete_and_recolour_in_edit_mode_show_in_render(session):
+    r = step(session, "delete_recolour")
+    assert r["points_in_frame"] == GAUSSIANS - 1 and r["total"] == 70 * GAUSSIANS - 1
+    assert r["recoloured"] == [1.0, 0.0, 0.0, 1.0]
+    assert r["psnr_vs_core_edited"] > 40
+
+
+def test_geometry_nodes_set_position_shows_in_render(session):
+    r = step(session, "geometry_nodes")
+    assert r["psnr_vs_unmodified"] < 30  # it moved
+    assert r["psnr_vs_core_shifted"] > 40  # exactly as the core renders the shifted Gaussians
+
+
+def test_save_and_reload_keeps_every_frame(session):
+    r = step(session, "save_reload")
+    assert r["attributes_equal"] and r["settings_equal"]
+    assert r["frames_after"] == list(range(70)) and r["vertices"] == 70 * GAUSSIANS - 1
+    assert r["render_psnr_vs_before"] > 50
+
+
+def test_edit_current_frame_shows_only_that_frame(session):
+    r = step(session, "edit_frame")
+    assert r["mode"] == "EDIT"
+    assert r["visible"] == GAUSSIANS and r["visible_frames"] == [r["clip_frame"]]
+
+
+def test_reencode_replaces_points_and_keeps_modifiers(session):
+    r = step(session, "reencode")
+    assert r["result"] == ["FINISHED"]
+    assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 500, 500, 2)
+    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 500)
+    assert r["psnr"] != r["psnr_before"]
+    assert r["mesh"] == "tennis" and r["meshes"] == 1  # the old mesh is gone, its name kept
+
+
+def test_viewport_texture_draws(session):
+    r = step(session, "viewport_texture")
+    if r.get("skipped"):
+        pytest.skip(r["skipped"])
+    assert r["max_error"] < 2e-3
+
+
+# ----------------------------------------------------------------------------------------------------
+# Blender side (run as a script: python test_blender_addon.py ZIP WORKDIR OUT.json)
+
+def run_session(zip_path, work, out_path):
+    sys.path.insert(0, str(ROOT / "tools"))
+    import blender_main_job as job
+
+    results = {}
+
+    def record(name):
+        """Decorator that runs the step at once, storing its result (or traceback) under `name`."""
+        def wrap(fn):
+            try:
+                results[name] = fn()
+            except BaseException:
+                results[name] = {"error": traceback.format_exc()}
+            Path(out_path).write_text(json.dumps(results, indent=1, default=str))
+            return fn
+        return wrap
+
+    bpy = job.start_blender(Path(work) / "user")
+    ctx = {}
+
+    @record("install")
+    def _():
+        addon = job.install_extension(bpy, zip_path)
+        ctx["addon"] = addon
+        return dict(module=addon.__name__, file=addon.__file__,
+                    operators=sorted(n for n in dir(bpy.ops.hypergs) if not n.startswith("_")),
+                    engine="HYPERGS" in {getattr(e, "bl_idname", None)
+                                         for e in bpy.types.RenderEngine.__subclasses__()},
+                    torch_importable=_importable("torch"))
+
+    addon = ctx["addon"]
+    from hypergs_blender.encode import encode_video
+    from hypergs_blender.metrics import psnr
+    from hypergs_blender.points import points_to_params, render_params_srgb
+    from hypergs_blender.render import render_frames
+    from hypergs_blender.video import iter_frames, resize_exact
+    encoder = _import(addon, "ops.encoder").make_encoder()
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+
+    @record("errors")
+    def _():
+        data = TENNIS.read_bytes()
+        corrupt = Path(work) / "corrupt.mp4"  # container intact, frame data zeroed after the first frames
+        start, stop = data.find(b"mdat") + 20000, data.find(b"moov") - 4
+        assert 0 < start < stop, "expected mdat before moov"
+        corrupt.write_bytes(data[:start] + bytes(stop - start) + data[stop:])
+        truncated = Path(work) / "truncated.mp4"
+        truncated.write_bytes(data[:len(data) // 2])
+        text = Path(work) / "notes.mp4"
+        text.write_text("this is not a video\n" * 100)
+        cases = {}
+
+        def attempt(name, expect, call):
+            before = snapshot(bpy)
+            message, raised = "", False
+            try:
+                call()
+            except RuntimeError as e:
+                message, raised = str(e), True
+            after = snapshot(bpy)
+            cases[name] = dict(raised=raised, message=message, expect=expect, unchanged=before == after,
+                               diff=diff(before, after))
+
+        attempt("corrupt_video", "corrupt.mp4: cannot decode",
+                lambda: bpy.ops.hypergs.import_video(filepath=str(corrupt)))
+        attempt("truncated_video", "truncated.mp4",
+                lambda: bpy.ops.hypergs.import_video(filepath=str(truncated)))
+        attempt("text_as_mp4", "notes.mp4", lambda: bpy.ops.hypergs.import_video(filepath=str(text)))
+        attempt("missing_file", "no such video file",
+                lambda: bpy.ops.hypergs.import_video(filepath=str(Path(work) / "nothing.mp4")))
+        attempt("no_strip", "no active strip", lambda: bpy.ops.hypergs.convert_strip())
+        editor = scene.sequence_editor_create()
+        strips = editor.strips if hasattr(editor, "strips") else editor.sequences
+        length = dict(length=10) if bpy.app.version >= (5, 0, 0) else dict(frame_end=11)
+        color = strips.new_effect(name="colour", type="COLOR", channel=3, frame_start=1, **length)
+        editor.active_strip = color
+        attempt("not_a_movie_strip", "not a movie strip", lambda: bpy.ops.hypergs.convert_strip())
+        strips.remove(color)
+        return cases
+
+    @record("bundled_encoder")
+    def _():
+        encoder_module = _import(addon, "ops.encoder")
+        weights = Path(addon.__file__).parent / "hypergs_blender" / "weights"
+        has_onnx = any(weights.glob("*.onnx"))
+        saved = os.environ.get("HYPERGS_ENCODER")
+        os.environ["HYPERGS_ENCODER"] = "bundled"
+        try:
+            try:
+                name, error = type(encoder_module.make_encoder()).__name__, None
+            except Exception as e:
+                name, error = None, f"{type(e).__name__}: {e}"
+            before = snapshot(bpy)
+            raised = False
+            if error is not None:  # the operator reports it and changes nothing
+                try:
+                    bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE))
+                except RuntimeError:
+                    raised = True
+            unchanged = snapshot(bpy) == before
+        finally:
+            os.environ["HYPERGS_ENCODER"] = saved or ""
+            encoder_module._cache.clear()
+        return dict(has_onnx=has_onnx, encoder=name, problem=error, raised=raised, unchanged=unchanged)
+
+    @record("cancel")
+    def _():
+        enc = _import(addon, "hypergs_blender.encode")
+        original = enc.encode_video
+        calls = []
+
+        def cancelling(*args, progress=None, **kwargs):  # what Esc does: progress returns False
+            def progress_then_cancel(done, total):
+                calls.append(done)
+                progress(done, total)
+                return done == 0
+            return original(*args, progress=progress_then_cancel, **kwargs)
+
+        before = snapshot(bpy)
+        enc.encode_video = cancelling
+        try:
+            result = bpy.ops.hypergs.import_video(filepath=str(TENNIS))
+        finally:
+            enc.encode_video = original
+        after = snapshot(bpy)
+        jobs = _import(addon, "ops.jobs")
+        threaded = jobs.EncodeJob(jobs.EncodeRequest(str(TENNIS), 500, 1)).start()
+        threaded.cancel()
+        threaded.join(60)
+        return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
+                    diff=diff(before, after), thread_job_cancelled=type(threaded.error).__name__ == "Cancelled")
+
+    @record("import_video")
+    def _():
+        for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
+            bpy.data.objects.remove(o)
+        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), gaussian_count=500, patch_grid=2)
+        obj = bpy.data.objects["sample"]
+        s = obj.hypergs
+        out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
+                   grid=s.grid, frame_start=s.frame_start, scene_frame_start=scene.frame_start,
+                   camera=scene.camera.name if scene.camera else None,
+                   active=bpy.context.view_layer.objects.active.name,
+                   display_points=display_points(bpy, obj))
+        bpy.data.meshes.remove(obj.data)  # the tennis renders below show the tennis clip alone
+        return out
+
+    strip = job.add_movie_strip(bpy, scene, TENNIS, frame_start=1, name="tennis")
+    reference = encode_video(str(TENNIS), encoder, GAUSSIANS, 1)
+    truth = {i: f for i, f in iter_frames(str(TENNIS), [f - 1 for f in RENDER_FRAMES])}
+
+    @record("convert")
+    def _():
+        result = bpy.ops.hypergs.convert_strip(gaussian_count=GAUSSIANS)
+        obj = bpy.data.objects["tennis"]
+        ctx["obj"] = obj
+        s = obj.hypergs
+        scene.frame_set(10)
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        ref_psnr = float(np.mean([psnr(render_frames(reference, 432, 240, [i])[0], f / np.float32(255))
+                                  for i, f in truth.items()]))
+        return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
+                    vertices=len(obj.data.vertices), frame_start=s.frame_start,
+                    canvas=[s.canvas_width, s.canvas_height],
+                    fps=s.fps, evaluated_vertices=len(ev.data.vertices), strip_muted=strip.mute,
+                    use_sequencer=scene.render.use_sequencer,
+                    engine=scene.render.engine, view_transform=scene.view_settings.view_transform,
+                    attributes={a.name: a.data_type for a in obj.data.attributes
+                                if a.name in ("scale", "rotation", "color", "frame")},
+                    psnr=s.psnr, reference_psnr=ref_psnr, seconds=s.encode_seconds,
+                    display_points=display_points(bpy, obj))
+
+    obj = ctx["obj"]
+
+    def f12(frame, width, height, name):
+        scene.render.resolution_x, scene.render.resolution_y = width, height
+        scene.render.resolution_percentage = 100
+        png = Path(work) / f"{name}.png"
+        seconds = job.render_png(bpy, scene, frame, png)
+        return job.read_png(bpy, png), seconds
+
+    def core_render(params, width, height):
+        return np.clip(render_params_srgb(params, 432, 240, width, height), 0, 1)
+
+    @record("render")
+    def _():
+        out = {}
+        for w, h in SIZES:
+            row = {}
+            for frame in RENDER_FRAMES:
+                image, seconds = f12(frame, w, h, f"f{frame}_{w}x{h}")
+                src = resize_exact(truth[frame - 1], w, h) / np.float32(255)
+                ref = render_frames(reference, w, h, [frame - 1])[0]
+                row[str(frame)] = dict(size=list(image.shape[:2]), seconds=seconds,
+                                       psnr_source=float(psnr(image, src)), psnr_reference=float(psnr(ref, src)),
+                                       psnr_vs_core=float(psnr(image, np.clip(ref, 0, 1))))
+            out[f"{w}x{h}"] = row
+        return out
+
+    @record("animation")
+    def _():
+        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 216, 120, 100
+        scene.frame_start, scene.frame_end = 1, 3
+        scene.render.image_settings.file_format = "PNG"
+        scene.render.filepath = str(Path(work) / "anim" / "f_####")
+        bpy.ops.render.render(animation=True)
+        files = sorted(p.name for p in (Path(work) / "anim").glob("f_*.png"))
+        first, last = (job.read_png(bpy, Path(work) / "anim" / name) for name in (files[0], files[-1]))
+        scene.frame_start, scene.frame_end = 1, 70
+        return dict(files=files, first_vs_last_psnr=float(psnr(last, first)))
+
+    def frame_params(mesh, clip_frame):
+        pts = read_mesh(mesh)
+        keep = pts["frame"] == clip_frame
+        return points_to_params(pts["position"][keep], pts["scale"][keep], pts["rotation"][keep],
+                                pts["color"][keep], 432, 240), np.flatnonzero(keep)
+
+    W, H = 864, 480
+
+    @record("move_point")
+    def _():
+        import bmesh
+        frame, clip_frame = 35, 34
+        before, _ = f12(frame, W, H, "move_before")
+        other_before, _ = f12(1, W, H, "move_other_before")
+        params, index = frame_params(obj.data, clip_frame)
+        k = int(np.argmax(params[:, 5:8].sum(1) * (np.abs(params[:, 0]) < 0.6) * (np.abs(params[:, 1]) < 0.6)))
+        vertex = int(index[k])
+        delta = np.array([0.35, 0.25, 0.0])  # plane units (canvas height = 2)
+        bpy.context.view_layer.objects.active = obj
+        bpy.ops.object.mode_set(mode="EDIT")
+        bm = bmesh.from_edit_mesh(obj.data)
+        bm.verts.ensure_lookup_table()
+        bm.verts[vertex].co += _vec(delta)
+        bmesh.update_edit_mesh(obj.data)
+        bpy.ops.object.mode_set(mode="OBJECT")
+        after, _ = f12(frame, W, H, "move_after")
+        other_after, _ = f12(1, W, H, "move_other_after")
+        edited, _ = frame_params(obj.data, clip_frame)
+        change = np.abs(after - before).max(-1)
+        old = ((params[k, 0] + 1) * W / 2, (params[k, 1] + 1) * H / 2)
+        new = ((edited[k, 0] + 1) * W / 2, (edited[k, 1] + 1) * H / 2)
+        reach = 3 * max(params[k, 2], params[k, 3]) * W / 432 + 2
+        yy, xx = np.mgrid[0:H, 0:W] + 0.5
+        near_old = np.hypot(xx - old[0], yy - old[1]) < 2
+        near_new = np.hypot(xx - new[0], yy - new[1]) < 2
+        far = (np.hypot(xx - old[0], yy - old[1]) > reach) & (np.hypot(xx - new[0], yy - new[1]) > reach)
+        return dict(vertex=vertex, changed_near_old=float(change[near_old].max()),
+                    changed_near_new=float(change[near_new].max()), max_change_far=float(change[far].max()),
+                    psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))),
+                    other_frame_unchanged=bool(np.abs(other_after - other_before).max() < 1e-6))
+
+    @record("delete_recolour")
+    def _():
+        import bmesh
+        frame, clip_frame = 50, 49
+        bpy.context.view_layer.objects.active = obj
+        scene.frame_set(frame)
+        params, index = frame_params(obj.data, clip_frame)
+        order = np.argsort(-params[:, 5:8].sum(1))
+        recolour, delete = int(index[order[0]]), int(index[order[1]])
+        bpy.ops.hypergs.edit_frame()
+
+        def select(vertex):
+            bm = bmesh.from_edit_mesh(obj.data)
+            bm.verts.ensure_lookup_table()
+            for v in bm.verts:
+                v.select_set(False)
+            bm.verts[vertex].select_set(True)
+            bmesh.update_edit_mesh(obj.data)
+
+        select(recolour)
+        bpy.ops.mesh.attribute_set(value_color=(1.0, 0.0, 0.0, 1.0))  # Mesh > Set Attribute
+        select(delete)
+        bpy.ops.mesh.delete(type="VERT")
+        bpy.ops.object.mode_set(mode="OBJECT")
+        pts = read_mesh(obj.data)
+        after, _ = f12(frame, W, H, "recolour_after")
+        edited, _ = frame_params(obj.data, clip_frame)
+        return dict(points_in_frame=int((pts["frame"] == clip_frame).sum()), total=len(pts["frame"]),
+                    recoloured=pts["color"][recolour - (delete < recolour)].tolist(),
+                    psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))))
+
+    @record("geometry_nodes")
+    def _():
+        frame = 1
+        plain, _ = f12(frame, W, H, "gn_before")
+        mod = obj.modifiers.new("Shift", "NODES")
+        mod.node_group = set_position_group(bpy, (0.25, 0.0, 0.0))
+        shifted, _ = f12(frame, W, H, "gn_after")
+        params, _ = frame_params(obj.data, frame - 1)
+        params[:, 0] += 0.25 / (432 / 240)  # plane x -> canvas x
+        return dict(psnr_vs_unmodified=float(psnr(shifted, plain)),
+                    psnr_vs_core_shifted=float(psnr(shifted, core_render(params, W, H))))
+
+    @record("save_reload")
+    def _():
+        before_attrs = read_mesh(obj.data)
+        before_settings = settings(obj)
+        before_render, _ = f12(35, W, H, "reload_before")
+        path = Path(work) / "clip.blend"
+        bpy.ops.wm.save_as_mainfile(filepath=str(path))
+        bpy.ops.wm.open_mainfile(filepath=str(path))
+        again = bpy.data.objects["tennis"]
+        after_attrs = read_mesh(again.data)
+        sc = bpy.context.scene
+        sc.frame_set(35)
+        png = Path(work) / "reload_after.png"
+        job.render_png(bpy, sc, 35, png)
+        after_render = job.read_png(bpy, png)
+        ctx["obj"] = again
+        return dict(attributes_equal=all(np.array_equal(before_attrs[k], after_attrs[k]) for k in before_attrs),
+                    settings_equal=settings(again) == before_settings,
+                    frames_after=sorted(set(after_attrs["frame"].tolist())), vertices=len(after_attrs["frame"]),
+                    render_psnr_vs_before=float(psnr(after_render, before_render)))
+
+    @record("edit_frame")
+    def _():
+        again = ctx["obj"]
+        sc = bpy.context.scene
+        bpy.context.view_layer.objects.active = again
+        sc.frame_set(20)
+        bpy.ops.hypergs.edit_frame()
+        mode = again.mode
+        bpy.ops.object.mode_set(mode="OBJECT")
+        pts = read_mesh(again.data)
+        hidden = np.empty(len(again.data.vertices), bool)
+        again.data.vertices.foreach_get("hide", hidden)
+        return dict(mode=mode, clip_frame=19, visible=int((~hidden).sum()),
+                    visible_frames=sorted(set(pts["frame"][~hidden].tolist())))
+
+    @record("reencode")
+    def _():
+        again = ctx["obj"]
+        psnr_before = again.hypergs.psnr
+        again.hypergs.gaussian_count, again.hypergs.patch_grid = 500, 2
+        result = bpy.ops.hypergs.reencode()
+        s = again.hypergs
+        return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
+                    grid=s.grid, psnr_before=psnr_before, psnr=s.psnr,
+                    modifiers=[m.name for m in again.modifiers], display_points=display_points(bpy, again),
+                    mesh=again.data.name, meshes=len(bpy.data.meshes))
+
+    @record("viewport_texture")
+    def _():
+        return viewport_texture_check(bpy, addon)
+
+    return results
+
+
+def display_points(bpy, obj):
+    """Points of the evaluated point cloud that shows the clip in Solid mode (None: no API to look)."""
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    if not hasattr(bpy.types, "GeometrySet"):
+        return None
+    geometry = bpy.types.GeometrySet.from_evaluated_object(ev)  # keep it alive while reading
+    cloud = geometry.pointcloud
+    return len(cloud.points) if cloud is not None else 0
+
+
+def _vec(values):
+    from mathutils import Vector
+    return Vector(values)
+
+
+def _importable(name):
+    try:
+        __import__(name)
+        return True
+    except ImportError:
+        return False
+
+
+def _import(addon, name):
+    import importlib
+    return importlib.import_module(f"{addon.__name__}.{name}")
+
+
+def read_mesh(mesh):
+    n = len(mesh.vertices)
+    out = {"position": np.empty(n * 3, np.float32)}
+    mesh.attributes["position"].data.foreach_get("vector", out["position"])
+    for name, key, size, dtype in (("scale", "vector", 2, np.float32), ("rotation", "value", 1, np.float32),
+                                   ("color", "color", 4, np.float32), ("frame", "value", 1, np.int32)):
+        out[name] = np.empty(n * size, dtype)
+        mesh.attributes[name].data.foreach_get(key, out[name])
+    out["position"] = out["position"].reshape(n, 3)
+    out["scale"] = out["scale"].reshape(n, 2)
+    out["color"] = out["color"].reshape(n, 4)
+    return out
+
+
+def settings(obj):
+    s = obj.hypergs
+    return {k: getattr(s, k) for k in ("is_clip", "source", "num_frames", "gaussians_per_frame", "grid", "psnr",
+                                       "canvas_width", "canvas_height", "fps", "frame_start", "speed")}
+
+
+def set_position_group(bpy, offset):
+    group = bpy.data.node_groups.new("Shift", "GeometryNodeTree")
+    group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gin, gout = group.nodes.new("NodeGroupInput"), group.nodes.new("NodeGroupOutput")
+    setp = group.nodes.new("GeometryNodeSetPosition")
+    setp.inputs["Offset"].default_value = offset
+    group.links.new(gin.outputs[0], setp.inputs["Geometry"])
+    group.links.new(setp.outputs[0], gout.inputs[0])
+    return group
+
+
+def snapshot(bpy):
+    """What an operator must not change when it fails or is cancelled."""
+    data = {kind: sorted(x.name for x in getattr(bpy.data, kind))
+            for kind in ("objects", "meshes", "node_groups", "cameras", "materials", "collections", "scenes")}
+    sc = bpy.context.scene
+    editor = sc.sequence_editor
+    strips = []
+    if editor is not None:
+        all_strips = editor.strips_all if hasattr(editor, "strips_all") else editor.sequences_all
+        strips = sorted((s.name, s.mute, s.frame_start, s.frame_final_duration) for s in all_strips)
+    vs = sc.view_settings
+    data["scene"] = dict(engine=sc.render.engine, view=vs.view_transform, look=vs.look, exposure=vs.exposure,
+                         gamma=vs.gamma, camera=sc.camera.name if sc.camera else None,
+                         frames=[sc.frame_start, sc.frame_end, sc.frame_current], strips=strips,
+                         active=bpy.context.view_layer.objects.active.name
+                         if bpy.context.view_layer.objects.active else None,
+                         selected=sorted(o.name for o in bpy.context.view_layer.objects if o.select_get()))
+    return data
+
+
+def diff(a, b):
+    return {k: (a.get(k), b.get(k)) for k in set(a) | set(b) if a.get(k) != b.get(k)}
+
+
+def viewport_texture_check(bpy, addon):
+    """The viewport's upload path (numpy -> GPU texture -> drawn) inside a render with a GPU context:
+    Blender has no window here, so view_draw itself cannot run; this checks what it draws with."""
+    import gpu
+    draw = _import(addon, "engine.draw")
+    found = {}
+
+    class Probe(bpy.types.RenderEngine):
+        bl_idname = "HYPERGS_TEST_PROBE"
+        bl_label = "probe"
+        bl_use_gpu_context = True
+
+        def render(self, depsgraph):
+            try:
+                rng = np.random.default_rng(0)
+                rgba = rng.uniform(0, 1, (24, 40, 4)).astype(np.float32)
+                texture = draw.make_texture(rgba)
+                offscreen = gpu.types.GPUOffScreen(40, 24, format="RGBA32F")
+                with offscreen.bind():
+                    from gpu_extras.presets import draw_texture_2d
+                    from mathutils import Matrix
+                    fb = gpu.state.active_framebuffer_get()
+                    fb.clear(color=(0, 0, 0, 0))
+                    with gpu.matrix.push_pop():
+                        gpu.matrix.load_matrix(Matrix.Identity(4))
+                        gpu.matrix.load_projection_matrix(Matrix.Identity(4))
+                        gpu.matrix.translate((-1, -1))
+                        gpu.matrix.scale((2 / 40, 2 / 24))
+                        draw_texture_2d(texture, (0, 0), 40, 24)
+                    pixels = np.array(fb.read_color(0, 0, 40, 24, 4, 0, "FLOAT").to_list(), np.float32)
+                offscreen.free()
+                found["max_error"] = float(np.abs(pixels.reshape(24, 40, 4) - rgba).max())
+            except Exception as e:  # no GPU context on this machine
+                found["skipped"] = f"no GPU drawing here: {type(e).__name__}: {e}"
+            result = self.begin_result(0, 0, 4, 4)
+            self.end_result(result)
+
+    bpy.utils.register_class(Probe)
+    sc = bpy.context.scene
+    engine = sc.render.engine
+    sc.render.engine = Probe.bl_idname
+    sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = 4, 4, 100
+    try:
+        bpy.ops.render.render()
+    finally:
+        sc.render.engine = engine
+        bpy.utils.unregister_class(Probe)
+    return found or {"skipped": "the probe engine did not run"}
+
+
+if __name__ == "__main__":
+    zip_arg, work_arg, out_arg = sys.argv[1:4]
+    run_session(zip_arg, work_arg, out_arg)
+    sys.stdout.flush()
+    os._exit(0)  # skip bpy's slow teardown

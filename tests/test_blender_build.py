@@ -1,0 +1,104 @@
+"""The extension package: manifest, build with Blender's blender_ext.py, validation, zip contents."""
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+import build_extension  # noqa: E402
+
+PLATFORMS = ["linux-x64", "windows-x64", "macos-arm64"]
+
+
+@pytest.fixture(scope="module")
+def manifest():
+    with open(ROOT / "blender_manifest.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+@pytest.fixture(scope="module")
+def zips(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    combined = build_extension.build(out / "all", quiet=True)
+    split = build_extension.build(out / "split", split_platforms=True, quiet=True)
+    return combined, split
+
+
+def test_manifest(manifest):
+    assert manifest["id"] == "hypergs" and manifest["type"] == "add-on"
+    assert manifest["blender_version_min"] == "4.2.0"
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
+    assert manifest["permissions"]["files"].strip()  # a reason is given
+    assert "network" not in manifest["permissions"]
+    assert sorted(manifest["platforms"]) == sorted(PLATFORMS)
+    tags = [build_extension.wheel_tags(w) for w in manifest["wheels"]]
+    for package in ("onnxruntime", "av"):
+        plats = {t[4] for t in tags if t[0] == package}
+        assert any(p.startswith("manylinux") and p.endswith("x86_64") for p in plats), package
+        assert "win_amd64" in plats, package
+        assert any(p.startswith("macosx") and p.endswith("arm64") for p in plats), package
+        assert len({t[1] for t in tags if t[0] == package}) == 1, f"one {package} version"
+
+
+def test_build_and_validate(zips):
+    combined, split = zips
+    assert len(combined) == 1
+    assert sorted(z.stem.rsplit("-", 1)[-1] for z in split) == sorted(p.replace("-", "_") for p in PLATFORMS)
+    for z in combined + split:  # build() validates; validate again here, with the same tool
+        result = build_extension.run_ext("validate", str(z))
+        assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_validator_rejects_a_broken_manifest(zips, tmp_path):
+    good = zips[1][0]
+    bad = tmp_path / "broken.zip"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "blender_manifest.toml":
+                data = data.replace(b'blender_version_min = "4.2.0"', b'blender_version_min = "four"')
+            if not item.filename.endswith(".whl"):
+                dst.writestr(item, data)
+    result = build_extension.run_ext("validate", str(bad))
+    assert result.returncode != 0
+
+
+def test_zip_contents(zips):
+    combined, split = zips
+    names = set(zipfile.ZipFile(combined[0]).namelist())
+    for required in ("blender_manifest.toml", "__init__.py", "ops/__init__.py", "ui/__init__.py",
+                     "engine/__init__.py", "hypergs_blender/encode.py", "hypergs_blender/points.py",
+                     "hypergs_blender/raster.py"):
+        assert required in names, required
+    for weight in (ROOT / "hypergs_blender" / "weights").glob("*"):
+        if weight.is_file():
+            assert f"hypergs_blender/weights/{weight.name}" in names
+    for name in names:
+        top = name.split("/")[0]
+        assert top not in {".venv", "tests", "data", "runs", "docs", "tools", ".git", ".ci", "dist"}, name
+        assert "__pycache__" not in name and not name.endswith(".pyc"), name
+        assert not name.startswith("hypergs_blender/samples/"), name
+    assert sum(n.startswith("wheels/") for n in names) == 6
+    linux = next(z for z in split if z.stem.endswith("linux_x64"))
+    wheels = [n for n in zipfile.ZipFile(linux).namelist() if n.startswith("wheels/")]
+    assert len(wheels) == 2 and all("manylinux" in w for w in wheels)
+
+
+def test_build_is_idempotent(tmp_path):
+    """Wheels already in wheels/ are not fetched again: a second build reuses them."""
+    build_extension.build(tmp_path / "first", quiet=True)
+    before = {p.name: p.stat().st_mtime_ns for p in (ROOT / "wheels").glob("*.whl")}
+    build_extension.build(tmp_path / "second", quiet=True)
+    after = {p.name: p.stat().st_mtime_ns for p in (ROOT / "wheels").glob("*.whl")}
+    assert before == after and before
+
+
+def test_command_line(tmp_path):
+    result = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--output-dir",
+                             str(tmp_path), "--split-platforms"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert len(result.stdout.split()) == 3

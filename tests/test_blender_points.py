@@ -1,0 +1,76 @@
+"""hypergs_blender/points.py: GaussianVideo <-> image-plane point arrays (the Blender storage). No bpy."""
+import numpy as np
+import pytest
+
+from hypergs_blender.gaussians import GaussianVideo
+from hypergs_blender.points import (linear_to_srgb, params_to_points, points_to_params, points_to_video,
+                                    render_params_srgb, srgb_image_to_linear_rgba, srgb_to_linear)
+from hypergs_blender.render import render_frames
+
+
+def random_params(t, n, seed=0):
+    rng = np.random.default_rng(seed)
+    p = np.empty((t, n, 8), np.float32)
+    p[..., 0:2] = rng.uniform(-1, 1, (t, n, 2))
+    p[..., 2:4] = rng.uniform(0.5, 6, (t, n, 2))
+    p[..., 4] = rng.uniform(0, 2 * np.pi, (t, n))
+    p[..., 5:8] = rng.uniform(-0.2, 1.3, (t, n, 3))
+    return p
+
+
+def test_srgb_transfer_is_inverted_everywhere():
+    v = np.linspace(-2, 3, 2001, dtype=np.float32)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(v)), v, atol=2e-6)
+    # the standard curve on [0, 1]
+    assert srgb_to_linear(np.float32(0.5)) == pytest.approx(0.21404, abs=1e-5)
+    assert srgb_to_linear(np.float32(1.0)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_points_layout():
+    p = random_params(3, 5)
+    pts = params_to_points(p, 432, 240)
+    assert pts["position"].shape == (15, 3) and pts["scale"].shape == (15, 2)
+    assert pts["color"].shape == (15, 4) and pts["rotation"].shape == (15,)
+    assert all(a.dtype == np.float32 for k, a in pts.items() if k != "frame")
+    np.testing.assert_array_equal(pts["frame"], np.repeat(np.arange(3), 5))
+    # the canvas' corners map to the plane's: x in [-aspect, aspect], y up
+    corner = np.array([[-1, -1, 2, 2, 0, 0.5, 0.5, 0.5]], np.float32)
+    c = params_to_points(corner, 432, 240)
+    np.testing.assert_allclose(c["position"][0], [-432 / 240, 1, 0], rtol=1e-6)
+    np.testing.assert_allclose(c["scale"][0], [2 * 2 / 240] * 2, rtol=1e-6)
+    np.testing.assert_allclose(c["color"][0], [0.21404] * 3 + [1], atol=1e-5)
+
+
+def test_round_trip():
+    p = random_params(4, 50)
+    pts = params_to_points(p, 432, 240)
+    back = points_to_video(pts, 432, 240).params
+    np.testing.assert_allclose(back[..., [0, 1, 2, 3, 5, 6, 7]], p[..., [0, 1, 2, 3, 5, 6, 7]], atol=2e-5)
+    # rotations agree modulo 2 pi
+    d = np.angle(np.exp(1j * (back[..., 4] - p[..., 4])))
+    assert np.abs(d).max() < 1e-5
+
+
+def test_round_trip_renders_the_same_at_another_aspect():
+    """Stretched to a square output, points -> params renders exactly what the original params do."""
+    p = random_params(1, 80, seed=3)
+    pts = params_to_points(p, 432, 240)
+    params = points_to_params(pts["position"], pts["scale"], pts["rotation"], pts["color"], 432, 240)
+    ours = render_params_srgb(params, 432, 240, 128, 128)
+    ref = render_frames(GaussianVideo(p, 432, 240), 128, 128)[0]
+    np.testing.assert_allclose(ours, ref, atol=1e-4)
+
+
+def test_empty_frame_renders_black():
+    assert not render_params_srgb(np.zeros((0, 8), np.float32), 10, 10, 7, 5).any()
+
+
+def test_render_pass_is_linear_and_bottom_up():
+    img = np.zeros((2, 3, 3), np.float32)
+    img[0] = 0.5  # top row
+    img[1] = -0.1  # bottom row, negative sum
+    rgba = srgb_image_to_linear_rgba(img)
+    assert rgba.shape == (2, 3, 4)
+    np.testing.assert_allclose(rgba[1, :, :3], 0.21404, atol=1e-5)  # top row is last
+    np.testing.assert_array_equal(rgba[0, :, :3], 0)
+    np.testing.assert_array_equal(rgba[..., 3], 1)

@@ -1,0 +1,97 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hypergs_blender.gaussians import (GaussianVideo, covariance, grid_anchors, inverse_covariance, merge_tiles,
+                                       render_inputs, stretch_params)
+from hypergs_blender.raster import rasterize_reference
+
+
+def random_params(t, n, seed=0, canvas=64):
+    rng = np.random.default_rng(seed)
+    p = np.empty((t, n, 8), np.float32)
+    p[..., 0:2] = rng.uniform(-0.9, 0.9, (t, n, 2))
+    p[..., 2:4] = rng.uniform(0.5, 6, (t, n, 2))
+    p[..., 4] = rng.uniform(0, 2 * math.pi, (t, n))
+    p[..., 5:8] = rng.uniform(-0.2, 1, (t, n, 3))
+    return p
+
+
+def test_save_load_round_trip(tmp_path):
+    video = GaussianVideo(random_params(3, 10), 64, 48, fps=25.0, grid=(2, 2), source={"path": "x.mp4"})
+    video.save(tmp_path / "clip.npz")
+    back = GaussianVideo.load(tmp_path / "clip.npz")
+    np.testing.assert_array_equal(back.params, video.params)
+    assert (back.canvas_width, back.canvas_height, back.fps, back.grid, back.source) == (64, 48, 25.0, (2, 2), {"path": "x.mp4"})
+
+
+def test_load_rejects_other_files(tmp_path):
+    (tmp_path / "bad.npz").write_text("not a zip")
+    with pytest.raises(ValueError, match="bad.npz"):
+        GaussianVideo.load(tmp_path / "bad.npz")
+
+
+def test_bad_shape_is_refused():
+    with pytest.raises(ValueError, match=r"\[T, N, 8\]"):
+        GaussianVideo(np.zeros((2, 3, 7)), 8, 8)
+
+
+def test_covariance_and_inverse():
+    p = random_params(1, 20)[0]
+    cov = covariance(p[:, 2:4].astype(np.float64), p[:, 4].astype(np.float64), (1.5, 0.5))
+    inv = inverse_covariance(p[:, 2:4].astype(np.float64), p[:, 4].astype(np.float64), (1.5, 0.5))
+    np.testing.assert_allclose(cov @ inv, np.broadcast_to(np.eye(2), cov.shape), atol=1e-9)
+    # determinant = (sx sy tx ty)^2 and eigenvalues are the stretched squared scales when axis-aligned
+    det = np.linalg.det(cov)
+    np.testing.assert_allclose(det, (p[:, 2] * p[:, 3] * 1.5 * 0.5) ** 2, rtol=1e-5)
+
+
+def test_render_inputs_cholesky_matches_numpy():
+    p = random_params(2, 30).astype(np.float64)
+    means, chol, _ = render_inputs(p, 64, 32, 200, 50)
+    cov = covariance(p[..., 2:4], p[..., 4], (200 / 64, 50 / 32))
+    expected = np.linalg.cholesky(cov)
+    np.testing.assert_allclose(chol[..., 0], expected[..., 0, 0], rtol=1e-9)
+    np.testing.assert_allclose(chol[..., 1], expected[..., 1, 0], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(chol[..., 2], expected[..., 1, 1], rtol=1e-9)
+    np.testing.assert_allclose(means[..., 0], (p[..., 0] + 1) * 100)
+    # torch gives the same numbers
+    t_means, t_chol, _ = render_inputs(torch.from_numpy(p), 64, 32, 200, 50)
+    np.testing.assert_allclose(t_chol.numpy(), chol, rtol=1e-9)
+
+
+def test_needle_cholesky_is_exact():
+    p = np.array([[0, 0, 40.0, 1e-3, 0.7, 1, 1, 1]])
+    _, chol, _ = render_inputs(p, 64, 64, 64, 64)
+    l11, l21, l22 = chol[0]
+    assert l11 * l22 == pytest.approx(40.0 * 1e-3, rel=1e-9)
+
+
+def test_stretch_params_renders_like_a_stretch():
+    p = random_params(1, 12, canvas=32)
+    stretched = stretch_params(p, 2.0, 0.75)
+    a = render_inputs(torch.from_numpy(p).double(), 32, 32, 64, 24)
+    b = render_inputs(torch.from_numpy(stretched).double(), 64, 24, 64, 24)
+    img_a = rasterize_reference(*a, 64, 24)
+    img_b = rasterize_reference(*b, 64, 24)
+    np.testing.assert_allclose(img_a.numpy(), img_b.numpy(), atol=2e-5)
+
+
+def test_merge_tiles_places_each_tile():
+    tile = np.zeros((2, 2, 1, 1, 8), np.float32)
+    tile[..., 2:4] = 4.0  # 4 canvas px on a 16 px canvas
+    merged = merge_tiles(tile, (2, 2), 100, 60, canvas=16)
+    # tile centres land at the quarter points of the frame
+    np.testing.assert_allclose(merged[0, :, 0], [-0.5, 0.5, -0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(merged[0, :, 1], [-0.5, -0.5, 0.5, 0.5], atol=1e-6)
+    # a tile 50 x 30 px drawn from a 16 px canvas: sigma 4 -> 12.5 px in x and 7.5 px in y
+    assert sorted(merged[0, 0, 2:4].tolist()) == pytest.approx([7.5, 12.5], rel=1e-5)
+
+
+@pytest.mark.parametrize("n, aspect", [(1, 1.0), (250, 1.0), (1000, 1.0), (3000, 1.0), (1000, 16 / 9)])
+def test_grid_anchors(n, aspect):
+    a = grid_anchors(n, aspect)
+    assert a.shape == (n, 2) and np.all(np.abs(a) < 1)
+    assert len(np.unique(a, axis=0)) == n

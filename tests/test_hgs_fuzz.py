@@ -1,0 +1,318 @@
+"""Fuzzing the .hgs reader: truncated files, flipped bits, overwritten bytes, huge declared sizes (with the
+checksums re-signed so the values get past them), wrong versions, garbage. Every input must either
+read as a valid clip or raise HgsError, within bounded memory and time: never another exception,
+a crash or a hang.
+
+In the test suite: hypothesis, a bounded number of examples. Stand-alone, a longer run that prints
+how many inputs it tried:
+    python tests/test_hgs_fuzz.py --seconds 600            # random structured mutations
+    python tests/test_hgs_fuzz.py --atheris -- -max_total_time=600   # coverage-guided (pip install atheris)
+"""
+from __future__ import annotations
+
+import math
+import random
+import struct
+import sys
+import tempfile
+import time
+import tracemalloc
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+if __name__ == "__main__":  # run as a script from anywhere: the package is in the checkout
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hypergs_blender.gaussians import GaussianVideo
+from hypergs_blender.hgs import _CHUNK, _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
+
+MAX_PEAK_BYTES = 400 << 20  # a clip's largest legal frame (2^20 Gaussians) decodes in less
+MAX_SECONDS = 10.0
+READ_LIMIT = 64 << 20  # read_all refuses more than this in the fuzz
+
+# (name, struct format) of the fixed header fields, in order
+HEADER_FIELDS = [("magic", "8s"), ("version", "H"), ("flags", "H"), ("canvas_w", "I"), ("canvas_h", "I"),
+                 ("fps", "d"), ("n", "I"), ("grid_c", "H"), ("grid_r", "H"), ("frames", "I"), ("group", "H"),
+                 ("reserved", "H")] + [(f"bits{i}", "B") for i in range(8)] + \
+                [(f"transform{i}", "B") for i in range(8)] + [(f"range{i}", "d") for i in range(16)] + \
+                [("index_offset", "Q"), ("json_len", "I")]
+assert struct.calcsize("<" + "".join(f for _, f in HEADER_FIELDS)) == _HEADER.size
+INTERESTING_INTS = [0, 1, 2, 3, 7, 8, 15, 16, 17, 63, 64, 65, 255, 256, 4096, 65535, 65536, 1 << 20, (1 << 20) + 1,
+                    (1 << 31) - 1, 1 << 31, (1 << 32) - 1, 1 << 32, (1 << 63) - 1, (1 << 64) - 1]
+INTERESTING_FLOATS = [0.0, -0.0, 1.0, -1.0, 1e-300, 1e300, -1e300, math.inf, -math.inf, math.nan, 88.0, 70.0, 1e30]
+
+
+def base_file() -> bytes:
+    rng = np.random.default_rng(0)
+    t, n = 7, 10
+    p = np.empty((t, n, 8), np.float32)
+    p[..., 0:2] = rng.uniform(-1, 1, (1, n, 2)) + np.cumsum(rng.normal(0, 0.01, (t, n, 2)), axis=0)
+    p[..., 2:4] = rng.uniform(0.5, 8, (t, n, 2))
+    p[..., 4] = rng.uniform(0, 6, (t, n))
+    p[..., 5:8] = rng.uniform(-0.2, 1.2, (t, n, 3))
+    p[..., 3] = 2.0  # one constant parameter: a stream that costs no data
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "base.hgs"
+        save_hgs(GaussianVideo(p, 48, 32, 24.0, (1, 1), {"k": "v"}), path, bits=6, group_size=3)
+        return path.read_bytes()
+
+
+BASE = base_file()
+
+
+def layout(data: bytes) -> dict:
+    """Offsets of the regions of a valid file: header end, chunks (offset, length), index offset."""
+    fields = _HEADER.unpack_from(data)
+    json_len = fields[-1]
+    header_end = _HEADER.size + json_len + _CRC.size
+    index_offset = fields[-2]
+    count = _INDEX.unpack_from(data, index_offset)[1]
+    chunks = [_ENTRY.unpack_from(data, index_offset + _INDEX.size + i * _ENTRY.size)[:2] for i in range(count)]
+    return {"header_end": header_end, "chunks": chunks, "index": index_offset}
+
+
+LAYOUT = layout(BASE)
+
+
+# ---- mutations (shared by hypothesis and the stand-alone runs) ----------------------------------------
+
+def resign_header(data: bytearray) -> None:
+    end = LAYOUT["header_end"] - _CRC.size
+    data[end:end + 4] = _CRC.pack(zlib.crc32(bytes(data[:end])))
+
+
+def resign_chunk(data: bytearray, chunk: int) -> None:
+    off, length = LAYOUT["chunks"][chunk]
+    end = off + length - _CRC.size
+    data[end:end + 4] = _CRC.pack(zlib.crc32(bytes(data[off:end])))
+
+
+def resign_index(data: bytearray) -> None:
+    end = len(data) - _CRC.size
+    data[end:] = _CRC.pack(zlib.crc32(bytes(data[LAYOUT["index"]:end])))
+
+
+def set_header_field(data: bytearray, name: str, value) -> None:
+    offset = 0
+    for field, fmt in HEADER_FIELDS:
+        if field == name:
+            try:
+                struct.pack_into("<" + fmt, data, offset, value)
+            except struct.error:
+                struct.pack_into("<" + fmt, data, offset, int(value) % (1 << (8 * struct.calcsize(fmt))))
+            return
+        offset += struct.calcsize("<" + fmt)
+    raise KeyError(name)
+
+
+def mutate(kind: str, rnd: random.Random, data: bytes = BASE) -> bytes:
+    """One mutation of a valid file, its parameters drawn from `rnd`."""
+    out = bytearray(data)
+    if kind == "truncate":
+        return bytes(out[:rnd.randrange(len(out))])
+    if kind == "flip":
+        for _ in range(rnd.randint(1, 8)):
+            pos = rnd.randrange(len(out))
+            out[pos] ^= 1 << rnd.randrange(8)
+        return bytes(out)
+    if kind == "overwrite":
+        pos = rnd.randrange(len(out))
+        out[pos:pos + 8] = rnd.choice([b"\xff" * 8, b"\x00" * 8, rnd.randbytes(8), struct.pack("<Q", 1 << 40)])
+        return bytes(out[:len(data)])
+    if kind == "header":  # a field set to an edge value, checksum re-signed so the value is used
+        name, fmt = rnd.choice(HEADER_FIELDS[1:])
+        value = rnd.choice(INTERESTING_FLOATS) if fmt == "d" else rnd.choice(INTERESTING_INTS)
+        set_header_field(out, name, value)
+        resign_header(out)
+        return bytes(out)
+    if kind == "chunk":  # damaged payload or chunk header, checksum re-signed
+        chunk = rnd.randrange(len(LAYOUT["chunks"]))
+        off, length = LAYOUT["chunks"][chunk]
+        for _ in range(rnd.randint(1, 4)):
+            pos = off + rnd.randrange(length - _CRC.size)
+            out[pos] = rnd.choice([0, 1, 2, 3, 0x7F, 0x80, 0xFF, rnd.randrange(256)])
+        resign_chunk(out, chunk)
+        return bytes(out)
+    if kind == "index":  # damaged index entries, checksum re-signed
+        start = LAYOUT["index"]
+        pos = start + rnd.randrange(len(out) - start - _CRC.size)
+        out[pos:pos + 4] = rnd.choice([b"\xff\xff\xff\xff", b"\x00\x00\x00\x00", rnd.randbytes(4), b"\x01\x00\x00\x00"])
+        out = out[:len(data)]
+        resign_index(out)
+        return bytes(out)
+    if kind == "splice":  # bytes inserted or removed somewhere
+        pos = rnd.randrange(len(out))
+        if rnd.random() < 0.5:
+            return bytes(out[:pos] + rnd.randbytes(rnd.randint(1, 64)) + out[pos:])
+        return bytes(out[:pos] + out[pos + rnd.randint(1, 64):])
+    if kind == "garbage":  # the magic, then noise
+        return bytes(out[:8]) + rnd.randbytes(rnd.randint(0, 2000))
+    raise ValueError(kind)
+
+
+KINDS = ("truncate", "flip", "overwrite", "header", "chunk", "index", "splice", "garbage")
+
+
+def read_outcome(data: bytes, path: Path) -> str:
+    """'ok' (a valid clip) or 'error' (HgsError); anything else propagates and fails the test.
+    Asserts the memory and time bounds."""
+    path.write_bytes(data)
+    tracemalloc.start()
+    started = time.perf_counter()
+    try:
+        with HgsReader(path) as reader:
+            video = reader.read_all(max_bytes=READ_LIMIT)
+            reader.verify()
+        assert video.params.shape[1:] == (video.num_gaussians, 8)
+        assert np.all(np.isfinite(video.params)) and np.all(video.params[..., 2:4] > 0)
+        outcome = "ok"
+    except HgsError as e:
+        assert str(e), "an error without a message"
+        outcome = "error"
+    finally:
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+    elapsed = time.perf_counter() - started
+    assert peak < MAX_PEAK_BYTES, f"{peak / 2**20:.0f} MiB to read a {len(data)}-byte file"
+    assert elapsed < MAX_SECONDS, f"{elapsed:.1f} s to read a {len(data)}-byte file"
+    return outcome
+
+
+# ---- the test suite -------------------------------------------------------------------------------
+
+def test_base_file_reads(tmp_path):
+    assert read_outcome(BASE, tmp_path / "f.hgs") == "ok"
+    assert len(LAYOUT["chunks"]) == 3
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(kind=st.sampled_from(KINDS), seed=st.integers(0, 2**32 - 1))
+def test_fuzzed_files_read_or_fail_cleanly(tmp_path, kind, seed):
+    read_outcome(mutate(kind, random.Random(seed)), tmp_path / "f.hgs")
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=600))
+def test_arbitrary_bytes_fail_cleanly(tmp_path, data):
+    assert read_outcome(data, tmp_path / "f.hgs") == "error"
+
+
+def test_every_truncation_is_an_error(tmp_path):
+    for length in range(0, len(BASE), 3):
+        assert read_outcome(BASE[:length], tmp_path / "f.hgs") == "error"
+
+
+@pytest.mark.parametrize("version", [0, 2, 65535])
+def test_wrong_version_says_so(tmp_path, version):
+    data = bytearray(BASE)
+    set_header_field(data, "version", version)
+    (tmp_path / "f.hgs").write_bytes(bytes(data))
+    with pytest.raises(HgsError, match=f"unsupported .hgs version {version}"):
+        HgsReader(tmp_path / "f.hgs")
+
+
+@pytest.mark.parametrize("field,value", [("n", (1 << 20)), ("n", 1 << 31), ("frames", (1 << 32) - 1),
+                                         ("json_len", (1 << 32) - 1), ("index_offset", (1 << 63)),
+                                         ("group", 65535), ("canvas_w", 0), ("fps", math.nan),
+                                         ("range5", math.inf), ("bits0", 17)])
+def test_huge_or_invalid_declared_sizes_are_refused_quickly(tmp_path, field, value):
+    data = bytearray(BASE)
+    set_header_field(data, field, value)
+    resign_header(data)
+    assert read_outcome(bytes(data), tmp_path / "f.hgs") == "error"
+
+
+def test_each_chunk_checksum_is_checked(tmp_path):
+    for off, length in LAYOUT["chunks"]:
+        data = bytearray(BASE)
+        data[off + length // 2] ^= 0x10
+        with pytest.raises(HgsError, match="checksum"):
+            _read_all(data, tmp_path)
+
+
+def _read_all(data, tmp_path):
+    (tmp_path / "f.hgs").write_bytes(bytes(data))
+    with HgsReader(tmp_path / "f.hgs") as reader:
+        reader.read_all()
+
+
+def test_unfinished_file_is_reported(tmp_path):
+    data = bytearray(BASE)
+    set_header_field(data, "index_offset", 0)
+    resign_header(data)
+    (tmp_path / "f.hgs").write_bytes(bytes(data))
+    with pytest.raises(HgsError, match="did not finish"):
+        HgsReader(tmp_path / "f.hgs")
+
+
+# ---- stand-alone runs -------------------------------------------------------------------------------
+
+def run_random(seconds: float, seed: int) -> dict:
+    rnd = random.Random(seed)
+    counts = {"ok": 0, "error": 0}
+    by_kind = {k: 0 for k in KINDS + ("bytes",)}
+    started = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "f.hgs"
+        while time.time() - started < seconds:
+            if rnd.random() < 0.05:
+                kind, data = "bytes", rnd.randbytes(rnd.randint(0, 300))
+            else:
+                kind = rnd.choice(KINDS)
+                data = mutate(kind, rnd)
+                if rnd.random() < 0.2:  # stack a second mutation
+                    data = mutate(rnd.choice(KINDS), rnd, data) if len(data) == len(BASE) else data
+            by_kind[kind] += 1
+            try:
+                counts[read_outcome(data, path)] += 1
+            except Exception:
+                crash = Path(f"hgs-crash-{sum(counts.values())}.hgs")
+                crash.write_bytes(data)
+                print(f"FAILURE on input saved to {crash}", file=sys.stderr)
+                raise
+    return {"inputs": sum(counts.values()), **counts, "by_kind": by_kind, "seconds": seconds, "seed": seed}
+
+
+def run_atheris(argv) -> None:
+    import atheris
+
+    tmp = Path(tempfile.mkdtemp())
+    path = tmp / "f.hgs"
+    stats = {"inputs": 0}
+
+    def one_input(raw: bytes) -> None:
+        fdp = atheris.FuzzedDataProvider(raw)
+        choice = fdp.ConsumeIntInRange(0, len(KINDS))
+        if choice == len(KINDS):
+            data = fdp.ConsumeBytes(fdp.remaining_bytes())
+        else:
+            data = mutate(KINDS[choice], random.Random(fdp.ConsumeInt(8)))
+        stats["inputs"] += 1
+        read_outcome(data, path)
+
+    atheris.instrument_all()
+    atheris.Setup(argv, one_input)
+    try:
+        atheris.Fuzz()
+    finally:
+        print(f"atheris: {stats['inputs']} inputs", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--atheris", action="store_true", help="coverage-guided; pass libFuzzer flags after --")
+    args, rest = parser.parse_known_args()
+    if args.atheris:
+        run_atheris([sys.argv[0]] + [a for a in rest if a != "--"])
+    else:
+        print(json.dumps(run_random(args.seconds, args.seed)))

@@ -1,0 +1,77 @@
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+from hypergs_blender.errors import VideoError
+from hypergs_blender.video import iter_frames, probe, read_clip, resize_crop, sample_indices
+
+
+def write_video(path, frames, fps=12):
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
+        stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
+        for f in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(f, format="rgb24")))
+        container.mux(stream.encode())
+
+
+@pytest.fixture
+def clip(tmp_path):
+    t = np.arange(10)[:, None, None, None]
+    frames = np.broadcast_to(((t * 20) % 256).astype(np.uint8), (10, 48, 80, 3)).copy()
+    path = tmp_path / "clip.mp4"
+    write_video(path, frames)
+    return path
+
+
+def test_probe_and_read(clip):
+    info = probe(clip)
+    assert (info.width, info.height, info.num_frames, info.fps) == (80, 48, 10, 12.0)
+    frames, _, indices = read_clip(clip, 4)
+    assert frames.shape == (4, 48, 80, 3) and indices == [0, 3, 6, 9]
+    # frame t has value 20 t (lossless encode)
+    np.testing.assert_allclose(frames[:, 0, 0, 0], [0, 60, 120, 180], atol=2)
+    square, _, _ = read_clip(clip, 2, start=2, stop=5, size=32)
+    assert square.shape == (2, 32, 32, 3)
+
+
+def test_iter_frames_streams_a_range(clip):
+    got = [i for i, _ in iter_frames(clip, [2, 3, 4])]
+    assert got == [2, 3, 4]
+
+
+def test_sample_indices():
+    assert sample_indices(100, 5) == [0, 25, 50, 74, 99]
+    assert sample_indices(10, None, 2, 5) == [2, 3, 4]
+    with pytest.raises(VideoError):
+        sample_indices(10, 3, 10)
+
+
+def test_resize_crop_centre():
+    image = np.zeros((40, 80, 3), np.uint8)
+    image[:, 20:60] = 255
+    out = resize_crop(image, 20)
+    assert out.shape == (20, 20, 3) and out.min() > 240  # the white centre square
+
+
+@pytest.mark.parametrize("content", [b"", b"hello, this is not a video\n" * 50])
+def test_bad_files_name_the_file(tmp_path, content):
+    path = tmp_path / "broken.mp4"
+    path.write_bytes(content)
+    with pytest.raises(VideoError, match="broken.mp4"):
+        probe(path)
+
+
+def test_truncated_video(clip, tmp_path):
+    data = Path(clip).read_bytes()
+    path = tmp_path / "truncated.mp4"
+    path.write_bytes(data[: len(data) // 3])
+    with pytest.raises(VideoError, match="truncated.mp4"):
+        read_clip(path, 8)
+
+
+def test_missing_file():
+    with pytest.raises(VideoError, match="no such video file"):
+        probe("/nonexistent/video.mp4")

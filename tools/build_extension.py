@@ -1,0 +1,129 @@
+"""Build the Blender extension zip(s) with Blender's own tool, and validate them with it.
+
+    python tools/build_extension.py [--output-dir dist] [--split-platforms]
+
+1. Fetches the wheels that `blender_manifest.toml` lists (`wheels = [...]`) into wheels/ with
+   `pip download --no-deps --only-binary=:all: --platform ... --python-version 3.11`; wheels already
+   there are kept, so re-running costs nothing.
+2. Runs `blender_ext.py build` (from the installed `bpy` wheel, or $BLENDER_EXT) on the repository root.
+3. Runs `blender_ext.py validate` on every zip it built.
+
+By default one zip holds all platforms; --split-platforms makes one per platform instead
+(hypergs-<version>-<platform>.zip, e.g. ..._linux_x64.zip). Prints the zip paths, one a line.
+Needs no bpy import (blender_ext.py runs with plain Python).
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import importlib.util
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+MANIFEST = ROOT / "blender_manifest.toml"
+
+
+class BuildError(RuntimeError):
+    pass
+
+
+def manifest() -> dict:
+    with open(MANIFEST, "rb") as f:
+        return tomllib.load(f)
+
+
+def blender_ext() -> Path:
+    """Path of blender_ext.py: $BLENDER_EXT, else the copy inside the installed bpy wheel."""
+    if os.environ.get("BLENDER_EXT"):
+        return Path(os.environ["BLENDER_EXT"])
+    spec = importlib.util.find_spec("bpy")  # locates the package without importing it
+    if spec is None or not spec.submodule_search_locations:
+        raise BuildError("bpy is not installed (pip install bpy==5.0.1), and $BLENDER_EXT is not set")
+    for location in spec.submodule_search_locations:
+        found = sorted(glob.glob(os.path.join(location, "*", "scripts", "addons_core", "bl_pkg", "cli",
+                                              "blender_ext.py")))
+        if found:
+            return Path(found[-1])
+    raise BuildError("blender_ext.py not found inside the bpy package")
+
+
+def wheel_tags(filename: str) -> tuple[str, str, str, str, str]:
+    """name, version, python tag, abi tag, platform tag of a wheel file name."""
+    parts = Path(filename).name[:-len(".whl")].split("-")
+    if len(parts) not in (5, 6):
+        raise BuildError(f"not a wheel file name: {filename}")
+    return parts[0], parts[1], parts[-3], parts[-2], parts[-1]
+
+
+def fetch_wheels(wheels: list[str], quiet: bool = False) -> None:
+    """Download every listed wheel missing under the repository root (idempotent)."""
+    for rel in wheels:
+        target = (ROOT / rel).resolve()
+        if target.is_file():
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        name, version, py, abi, plat = wheel_tags(target.name)
+        cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+               "--platform", plat, "--python-version", "3.11", "--implementation", "cp",
+               "--abi", abi, "-d", str(target.parent), f"{name}=={version}"]
+        if quiet:
+            cmd.insert(4, "-q")
+        print("fetching", target.name, file=sys.stderr)
+        subprocess.run(cmd, check=True, stdout=sys.stderr)
+        if not target.is_file():
+            raise BuildError(f"pip download did not produce {target.name}; update the manifest's wheels")
+
+
+def run_ext(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(blender_ext()), *args], capture_output=True, text=True)
+
+
+def validate(zip_path) -> None:
+    result = run_ext("validate", str(zip_path))
+    if result.returncode != 0:
+        raise BuildError(f"{zip_path} does not validate:\n{result.stdout}{result.stderr}")
+
+
+def build(output_dir=ROOT / "dist", split_platforms: bool = False, quiet: bool = False) -> list[Path]:
+    """Fetch wheels, build, validate; returns the paths of the zips built."""
+    meta = manifest()
+    fetch_wheels(meta.get("wheels", []), quiet)
+    output_dir = Path(output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    args = ["build", "--source-dir", str(ROOT), "--output-dir", str(output_dir)]
+    if split_platforms:
+        args.append("--split-platforms")
+    before = {p: p.stat().st_mtime_ns for p in output_dir.glob("*.zip")}
+    result = run_ext(*args)
+    if result.returncode != 0:
+        raise BuildError(f"blender_ext.py build failed:\n{result.stdout}{result.stderr}")
+    prefix = f"{meta['id']}-{meta['version']}"
+    zips = [p for p in output_dir.glob(f"{prefix}*.zip")
+            if p not in before or p.stat().st_mtime_ns != before[p]]
+    if not zips:
+        raise BuildError(f"blender_ext.py build made no zip in {output_dir}:\n{result.stdout}")
+    for z in zips:
+        validate(z)
+    return sorted(zips)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--output-dir", default=str(ROOT / "dist"))
+    parser.add_argument("--split-platforms", action="store_true", help="one zip per platform")
+    args = parser.parse_args(argv)
+    try:
+        for z in build(args.output_dir, args.split_platforms):
+            print(z)
+    except (BuildError, subprocess.CalledProcessError) as e:
+        print(f"build_extension: error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

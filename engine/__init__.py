@@ -30,7 +30,12 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
                 self.update_stats("", f"HyperGS: clip {done + 1} of {total}")
             return not self.test_break()
 
-        rgba = render_clips(evaluated_clips(depsgraph), width, height, keep_going)
+        problems = []
+        rgba = render_clips(evaluated_clips(depsgraph, problems=problems), width, height, keep_going)
+        for problem in problems:
+            # A warning, not an error: Blender treats an ERROR report as a failed frame (no image is
+            # written, Ctrl-F12 stops, bpy.ops.render.render raises). The other clips still render.
+            self.report({"WARNING"}, f"HyperGS: {problem}; the clip renders nothing")
         if rgba is None:
             return
         result = self.begin_result(0, 0, width, height)

@@ -108,7 +108,8 @@ def bench_raster(device: str = "cpu", batch: int = 32, sizes=(250, 1000, 3000), 
           "forward_s": round(_timeit(forward_fn(arrays, 1920, 1080), repeats, sync), 4),
           "forward_backward_s": round(_timeit(forward_backward_fn(arrays, 1920, 1080), repeats, sync), 4)}
     if numba_available():
-        hd["rasterize_numpy_numba_s"] = round(_timeit(lambda: rasterize_numpy(*arrays, 1920, 1080), repeats), 4)
+        hd["rasterize_numpy_numba_s"] = round(
+            _timeit(lambda: rasterize_numpy(*arrays, 1920, 1080), repeats), 4)
     hd["rasterize_numpy_pure_numpy_s"] = round(
         _timeit(lambda: rasterize_numpy(*arrays, 1920, 1080, backend="numpy"), 2), 3)
     report["1920x1080"] = hd
@@ -138,15 +139,65 @@ def _raster_cli(parser):
     return lambda args: bench_raster(device=args.device)
 
 
+def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), frames: int = 8, size: int = 256,
+                 grid: int = 1, repeats: int = 3, weights=None) -> dict:
+    """Encode throughput of the bundled network: one T-frame size x size clip per call, through the
+    whole encode path (tiling, resize to the canvas, forward, merge), for each Gaussian count."""
+    import numpy as np
+    import torch
+
+    from .encode import encode_frames
+    from .network import WEIGHTS_DIR, load_bundled_encoder
+
+    clip = np.random.default_rng(0).integers(0, 256, (frames, size, size, 3), dtype=np.uint8)
+    report = {"frames_per_clip": frames, "size": size, "grid": grid, "torch_threads": torch.get_num_threads(),
+              "device": "cpu"}
+    for backend in backends:
+        encoder = load_bundled_encoder(backend, weights or WEIGHTS_DIR, device="cpu")
+        for n in counts:
+            seconds = _timeit(lambda: encode_frames(clip, encoder, n, grid), repeats)
+            report[f"{backend}_N={n}"] = {"clips_per_s": round(1 / seconds, 3), "frames_per_s": round(frames / seconds, 2)}
+    return report
+
+
+def _encode_cli(parser):
+    parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--size", type=int, default=256)
+    parser.add_argument("--grid", type=int, default=1)
+    parser.add_argument("--weights", default=None)
+    return lambda args: bench_encode(frames=args.frames, size=args.size, grid=args.grid, weights=args.weights)
+
+
 def _codec_cli(parser):
     from .codec_cli import bench_codec_cli
     return bench_codec_cli(parser)
 
 
+def _vs_fit_cli(parser):
+    from .bench_compare import vs_fit_cli
+    return vs_fit_cli(parser)
+
+
+def _vs_x265_cli(parser):
+    from .bench_compare import vs_x265_cli
+    return vs_x265_cli(parser)
+
+
+def _scale_cli(parser):
+    from .bench_compare import scale_cli
+    return scale_cli(parser)
+
+
 # name -> (help, function adding the options and returning `args -> report dict`)
 BENCH_COMMANDS = {
     "raster": ("rasterizer frames/s: numba / torch paths, numpy-only path, dense reference", _raster_cli),
+    "encode": ("network encode clips/s and frames/s (torch and onnxruntime) for N in {250, 1000, 3000}", _encode_cli),
     "codec": (".hgs rate-distortion at 8/6/4 bits next to x265 (bpp, PSNR, frames/s)", _codec_cli),
+    "vs-fit": ("feedforward vs feedforward + refine vs per-frame fitting: PSNR, s/frame, ratio at matched PSNR",
+               _vs_fit_cli),
+    "vs-x265": ("matched-quality pairs, .hgs vs x265: bpp, PSNR, SSIM, encode/decode frames/s", _vs_x265_cli),
+    "scale": ("a long (default synthetic 60 s 720p) video end to end: frames/s, peak memory, 1080p render",
+              _scale_cli),
 }
 
 
@@ -171,6 +222,8 @@ def add_commands(subparsers) -> None:
             report = run(args)
             if args.json:
                 print(json.dumps(report, indent=2))
+            elif isinstance(report.get("table"), str):  # reports with a Markdown table print just that
+                print(report["table"])
             else:
                 _print_report(report)
         parser.set_defaults(func=func)

@@ -12,7 +12,7 @@ COMMAND_MODULES = ["encode", "evaluate", "train", "network", "fit", "bench", "co
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hypergs", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="hypergs", description="HyperGS: videos to editable 2D Gaussians in one forward pass.")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(f"hypergs_blender.{name}").add_commands(subparsers)

@@ -89,46 +89,64 @@ def encode_frames(frames: np.ndarray, encoder, gaussian_count: int, grid: int = 
     return merge_tiles(params, (grid, grid), w, h, encoder.canvas)
 
 
+class EncodePlan:
+    """What encoding a video will produce, known before any frame is decoded: the frames to take,
+    the canvas, the frame rate and the source description."""
+
+    def __init__(self, path, encoder, gaussian_count: int = 1000, grid: int = 1, size: int | None = None,
+                 start: int = 0, stop: int | None = None, num_frames: int | None = None):
+        info = probe(path)
+        self.path, self.encoder, self.gaussian_count, self.grid, self.size = path, encoder, gaussian_count, grid, size
+        self.indices = sample_indices(info.num_frames, num_frames, start, stop)
+        self.height, self.width = (size, size) if size else (info.height, info.width)
+        idx = self.indices
+        self.fps = info.fps * (len(idx) - 1) / max(1, idx[-1] - idx[0]) if len(idx) > 1 else info.fps
+        self.source = dict(path=str(path), frames=idx, size=[info.width, info.height],
+                           encoder=getattr(encoder, "name", type(encoder).__name__))
+
+    def chunks(self, progress: Progress | None = None, chunk_clips: int = 4, refine: int = 0):
+        """Yield params [t, N, 8] chunk by chunk: frames are decoded and encoded `chunk_clips` clips at
+        a time, so memory does not grow with the video. `progress` may return False to cancel
+        (raises Cancelled)."""
+        chunk = chunk_clips * self.encoder.clip_frames
+        done, buffer = 0, []
+
+        def report():
+            if progress is not None and progress(done, len(self.indices)) is False:
+                raise Cancelled("encoding cancelled")
+
+        def encode(frames):
+            params = encode_frames(frames, self.encoder, self.gaussian_count, self.grid)
+            if refine:
+                from .fit import refine_params
+                params = refine_params(params, frames, refine)
+            return params
+
+        report()
+        for _, frame in iter_frames(self.path, self.indices, self.size):
+            buffer.append(frame)
+            if len(buffer) == chunk:
+                yield encode(np.stack(buffer))
+                done += len(buffer)
+                buffer.clear()
+                report()
+        if buffer:
+            yield encode(np.stack(buffer))
+            done += len(buffer)
+            report()
+
+
 def encode_video(path, encoder, gaussian_count: int = 1000, grid: int = 1, size: int | None = None,
                  start: int = 0, stop: int | None = None, num_frames: int | None = None,
                  progress: Progress | None = None, chunk_clips: int = 4, refine: int = 0) -> GaussianVideo:
-    """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly).
-
-    size: None keeps the native frame (the canvas is W x H); an int short-side-resizes and
-    centre-crops to size x size first. Frames are decoded and encoded `chunk_clips` clips at a time,
-    so memory does not grow with the video. `progress` may return False to cancel (raises Cancelled).
-    """
-    info = probe(path)
-    indices = sample_indices(info.num_frames, num_frames, start, stop)
-    chunk = chunk_clips * encoder.clip_frames
+    """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
+    one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
+    short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
     started = time.perf_counter()
-    out, buffer = [], []
-
-    def flush():
-        frames = np.stack(buffer)
-        params = encode_frames(frames, encoder, gaussian_count, grid)
-        if refine:
-            from .fit import refine_params
-            params = refine_params(params, frames, refine)
-        out.append(params)
-        buffer.clear()
-        if progress is not None and progress(sum(len(p) for p in out), len(indices)) is False:
-            raise Cancelled("encoding cancelled")
-
-    if progress is not None and progress(0, len(indices)) is False:
-        raise Cancelled("encoding cancelled")
-    for _, frame in iter_frames(path, indices, size):
-        buffer.append(frame)
-        if len(buffer) == chunk:
-            flush()
-    if buffer:
-        flush()
-    h, w = (size, size) if size else (info.height, info.width)
-    fps = info.fps * (len(indices) - 1) / max(1, indices[-1] - indices[0]) if len(indices) > 1 else info.fps
-    return GaussianVideo(np.concatenate(out), w, h, fps, (grid, grid),
-                         dict(path=str(path), frames=indices, size=[info.width, info.height],
-                              encoder=getattr(encoder, "name", type(encoder).__name__),
-                              encode_seconds=time.perf_counter() - started))
+    plan = EncodePlan(path, encoder, gaussian_count, grid, size, start, stop, num_frames)
+    params = np.concatenate(list(plan.chunks(progress, chunk_clips, refine)))
+    return GaussianVideo(params, plan.width, plan.height, plan.fps, (grid, grid),
+                         dict(plan.source, encode_seconds=time.perf_counter() - started))
 
 
 def default_encoder(backend: str = "auto"):
@@ -162,6 +180,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--start", type=int, default=0)
     p.add_argument("--stop", type=int, default=None)
     p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
+    p.add_argument("--position-bits", type=int, default=10, choices=range(4, 17), metavar="{4..16}",
+                   help="bits of the means (.hgs; default 10: at 4-6 bits the means snap to a coarse lattice)")
     add_encoder_arguments(p)
     p.set_defaults(func=_encode_command)
 
@@ -175,23 +195,39 @@ def add_commands(subparsers) -> None:
 
 
 def _encode_command(args) -> None:
-    from .clip_io import save_clip
+    from pathlib import Path
+
     from tqdm import tqdm
     encoder = make_encoder(args)
     bar = tqdm(unit="frame", dynamic_ncols=True)
 
     def progress(done, total):
-        bar.total = total
-        bar.n = done
+        bar.total, bar.n = total, done
         bar.refresh()
         return True
 
-    video = encode_video(args.video, encoder, args.gaussians, args.grid, args.size, args.start, args.stop,
-                         progress=progress, refine=args.refine)
+    started = time.perf_counter()
+    plan = EncodePlan(args.video, encoder, args.gaussians, args.grid, args.size, args.start, args.stop)
+    chunks = plan.chunks(progress, refine=args.refine)
+    if Path(args.output).suffix.lower() == ".hgs":
+        # Streamed: memory stays bounded by the chunk, and the writer only renames its .part file
+        # into place when every frame is in, so an interrupted encode leaves no file behind.
+        from .codec import Quantizer
+        from .hgs import HgsWriter
+        bits = (args.position_bits,) * 2 + (args.bits,) * 6
+        quantizer = Quantizer.default(plan.width, plan.height, bits)
+        with HgsWriter(args.output, plan.width, plan.height, args.gaussians, quantizer, plan.fps,
+                       (args.grid, args.grid), plan.source) as writer:
+            for params in chunks:
+                writer.write(params)
+    else:
+        from .clip_io import save_clip
+        video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps,
+                              (args.grid, args.grid), plan.source)
+        save_clip(video, args.output)
     bar.close()
-    save_clip(video, args.output, bits=args.bits)
-    print(f"{args.output}: {video.num_frames} frames x {video.num_gaussians} Gaussians "
-          f"({video.source['encode_seconds']:.2f} s)")
+    print(f"{args.output}: {len(plan.indices)} frames x {args.gaussians} Gaussians "
+          f"({time.perf_counter() - started:.2f} s)")
 
 
 def _render_command(args) -> None:

@@ -47,7 +47,7 @@ def random_init(num_frames: int, n: int, width: int, height: int, seed: int = 0)
     return params
 
 
-def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations: int = 30,
+def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations: int = 10,
                           ridge: float = 1e-4) -> torch.Tensor:
     """Best colours for fixed geometry: CG on (A^T A + ridge I) c = A^T y, per frame and channel."""
     h, w = target.shape[-3:-1]

@@ -43,9 +43,13 @@ class Lamb(torch.optim.Optimizer):
         return loss
 
 
-def parameter_groups(model: torch.nn.Module, head_prefix: str = "head.") -> list[dict]:
-    """Matrices get the trust ratio and weight decay; biases, norms and the output head do not."""
+def parameter_groups(model: torch.nn.Module, head_prefix: str = "head.", plain_lr_scale: float = 0.1) -> list[dict]:
+    """Matrices get the trust ratio and weight decay; biases, norms and the output head do not, and
+    take plain Adam steps at `plain_lr_scale` x the learning rate: without the trust ratio, a LAMB
+    rate (~1e-3 relative per step) moves an output head fast enough to throw away its initialisation.
+    The trainer sets each group's lr to schedule(step) x its "lr_scale"."""
     adapted, plain = [], []
     for name, p in model.named_parameters():
         (adapted if p.ndim > 1 and not name.startswith(head_prefix) else plain).append(p)
-    return [dict(params=adapted), dict(params=plain, adapt=False, weight_decay=0.0)]
+    return [dict(params=adapted, lr_scale=1.0),
+            dict(params=plain, adapt=False, weight_decay=0.0, lr_scale=plain_lr_scale)]

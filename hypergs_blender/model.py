@@ -12,10 +12,13 @@ Two parametrizations of the Gaussian tokens and heads (`ModelConfig.parametrizat
 - "paper": N learned tokens; means tanh(h), colours sigmoid(h), rotation sigmoid(h) 2 pi,
   scale |h| + eps (canvas pixels). As in the HyperGS paper.
 - "local" (default): Gaussian k belongs to an anchor a_k on a regular grid (`gaussians.grid_anchors`).
-  Its token is an embedding of a_k plus the skip feature Z sampled under a_k, its mean is
+  Its token is an embedding of a_k, plus the skip feature Z sampled under a_k, plus a linear
+  embedding of the frame's pixels in its grid cell (a k x k bilinear sample spanning the cell: the
+  Gaussian's own neighbourhood at its own scale, which makes colours a nearly local, learnable
+  linear function of the pixels, as the least-squares colours are), its mean is
   tanh(atanh(a_k) + cell * h) (an offset from the anchor, in grid cells), its scale is
-  (|h| + eps) x the grid spacing, and its colour is signed: the frame's patch-mean colour under the
-  anchor times the gain that makes overlapping kernels sum to the image, plus h. At initialisation
+  (|h| + eps) x the grid spacing, and its colour is signed: the mean of its cell's pixel samples
+  times the gain that makes overlapping kernels sum to the image, plus h. At initialisation
   it is therefore the grid floor, and training only has to learn corrections; any N works with one
   model, and the cost of a Gaussian token does not depend on where its Gaussian lies.
   Q-Transformer attention uses 2D RoPE over patch centres and anchors, so tokens attend locally.
@@ -51,6 +54,7 @@ class ModelConfig:
     parametrization: str = "local"
     max_gaussians: int = 3000  # learned tokens of the "paper" parametrization
     rope_base: float = 100.0
+    cell_samples: int = 4  # "local": k x k pixel samples per Gaussian cell
 
     @property
     def grid(self) -> int:
@@ -154,6 +158,11 @@ class HyperGS(nn.Module):
             self.gaussian_tokens = nn.Parameter(torch.randn(cfg.max_gaussians, d) * 0.02)
         elif cfg.parametrization == "local":
             self.anchor_embed = nn.Sequential(nn.Linear(4 * 8, d), nn.GELU(), nn.Linear(d, d))
+            self.cell_embed = nn.Linear(3 * cfg.cell_samples ** 2, d)
+            k = cfg.cell_samples
+            offsets = (torch.arange(k).float() + 0.5) / k - 0.5  # cell-relative sample positions
+            oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
+            self.register_buffer("cell_offsets", torch.stack([ox, oy], -1).reshape(-1, 2), persistent=False)
             # Start at the grid floor: zero offsets and colour residuals, sigma = INITIAL_SIGMA cells.
             nn.init.zeros_(self.head.weight)
             with torch.no_grad():
@@ -186,7 +195,9 @@ class HyperGS(nn.Module):
             sample_at = anchors.reshape(1, 1, n, 2).expand(b * t, 1, n, 2)
             feature_map = z.transpose(1, 2).reshape(b * t, d, g, g)
             under_anchor = F.grid_sample(feature_map, sample_at, align_corners=False).reshape(b * t, d, n)
-            tokens = under_anchor.transpose(1, 2) + self.anchor_embed(fourier_features(anchors))
+            cell_pixels = self.cell_pixels(x, anchors, cell)  # [B*T, N, k*k, 3]
+            tokens = (under_anchor.transpose(1, 2) + self.anchor_embed(fourier_features(anchors))
+                      + self.cell_embed((cell_pixels.flatten(2) - 0.5) * 4))
             anchor_rc = (anchors.flip(-1) + 1) * (0.5 * g)  # (row, column) in patch units
             angles = rope_angles(torch.cat([self.patch_rc, anchor_rc]), d // cfg.heads, cfg.rope_base)
         h = torch.cat([z, tokens], dim=1)
@@ -203,12 +214,22 @@ class HyperGS(nn.Module):
             means = torch.tanh(base + cell * h[..., 0:2])
             spacing_px = cell * (0.5 * cfg.canvas)
             scales = (h[..., 2:4].abs() + SCALE_EPS) * spacing_px
-            patch_mean = F.avg_pool2d(x.reshape(b, 3 * t, cfg.canvas, cfg.canvas), cfg.patch)
-            sample_at = anchors.reshape(1, 1, n, 2).expand(b, 1, n, 2)
-            under = F.grid_sample(patch_mean, sample_at, align_corners=False).reshape(b, 3, t, n)
-            colours = COLOUR_GAIN * under.permute(0, 2, 3, 1) + h[..., 5:8]
+            cell_mean = cell_pixels.mean(2).reshape(b, t, n, 3)
+            colours = COLOUR_GAIN * cell_mean + h[..., 5:8]
         rotation = torch.sigmoid(h[..., 4:5]) * (2 * math.pi)
         return torch.cat([means, scales, rotation, colours], dim=-1)
+
+
+    def cell_pixels(self, x: torch.Tensor, anchors: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:
+        """Bilinear samples of the frames x [B, 3, T, c, c] on a k x k lattice spanning each anchor's
+        grid cell -> [B*T, N, k*k, 3]."""
+        b, _, t, c, _ = x.shape
+        n = anchors.shape[0]
+        points = anchors[:, None, :] + cell * self.cell_offsets[None]  # [N, k*k, 2]
+        frames = x.transpose(1, 2).reshape(b * t, 3, c, c)
+        grid = points.reshape(1, n, -1, 2).expand(b * t, n, points.shape[1], 2)
+        samples = F.grid_sample(frames, grid, align_corners=False, padding_mode="border")  # [B*T, 3, N, k*k]
+        return samples.permute(0, 2, 3, 1)
 
 
 def fourier_features(xy: torch.Tensor, bands: int = 8) -> torch.Tensor:

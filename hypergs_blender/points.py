@@ -16,8 +16,14 @@ A clip is stored as points whose attributes describe one Gaussian each (float32 
 
 Rendering sums the Gaussians in sRGB-encoded space (the model's definition) and only then decodes
 the image to scene-linear, so storing colours linearly changes nothing about the picture.
+
+Edited in Blender, frames may hold different numbers of points; `points_to_video` pads them to a
+GaussianVideo's fixed N with invisible Gaussians and records the real counts in
+`source["frame_counts"]`, which `video_to_points` honours (so export -> import keeps the edit).
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -77,17 +83,75 @@ def points_to_params(position: np.ndarray, scale: np.ndarray, rotation: np.ndarr
     return params
 
 
-def points_to_video(points: dict, canvas_width: int, canvas_height: int, fps: float = 24.0) -> GaussianVideo:
-    """Inverse of `params_to_points` for points with the same count in every frame (as encoded)."""
-    frame = np.asarray(points["frame"])
+FRAME_COUNTS = "frame_counts"  # GaussianVideo.source key: real Gaussians per frame of a padded clip
+
+
+def clip_frame_index(scene_frame: float, frame_start: int, speed: float) -> int:
+    """The clip frame shown at a scene frame (may be outside the clip): floor((f - start) * speed),
+    with a 1e-4 margin so that a speed like 1/3 lands on whole frames (as the Geometry Nodes do)."""
+    return math.floor((scene_frame - frame_start) * speed + 1e-4)
+
+
+def points_to_video(points: dict, canvas_width: int, canvas_height: int, fps: float = 24.0, *,
+                    num_frames: int | None = None, grid=(1, 1), source: dict | None = None) -> GaussianVideo:
+    """Flat point arrays (position, scale, rotation, color, frame; see the module docstring) -> a clip.
+
+    Frames may hold different numbers of points (points deleted or added in Blender): a
+    GaussianVideo needs N per frame, so every frame is padded to the largest count with invisible
+    Gaussians (colour 0, the clip's median scale, at the canvas centre) after its real ones, and
+    `source["frame_counts"]` lists the real counts (`video_to_points` drops the padding again;
+    other readers render the padding as nothing, or after 8-bit quantization as a colour within half
+    a quantization step of 0). Within a frame, points keep their order.
+    Points that cannot be a Gaussian are left out: a negative `frame`, non-finite values, a zero
+    scale (a scale's sign does not matter: only its square enters the covariance).
+    The clip has max(num_frames, largest frame + 1) frames (at least 1)."""
+    frame = np.asarray(points["frame"]).astype(np.int64).reshape(-1)
+    params = points_to_params(points["position"], np.abs(np.asarray(points["scale"], np.float32)),
+                              points["rotation"], points["color"], canvas_width, canvas_height)
+    keep = (frame >= 0) & np.all(np.isfinite(params), axis=1) & np.all(params[:, 2:4] > 0, axis=1)
+    frame, params = frame[keep], params[keep]
     order = np.argsort(frame, kind="stable")
-    t = int(frame.max()) + 1 if len(frame) else 0
+    frame, params = frame[order], params[order]
+    t = max(int(num_frames or 0), int(frame.max()) + 1 if len(frame) else 0, 1)
     counts = np.bincount(frame, minlength=t)
-    if t == 0 or np.any(counts != counts[0]):
-        raise ValueError("points_to_video needs the same number of points in every frame")
-    params = points_to_params(*(np.asarray(points[k])[order] for k in ("position", "scale", "rotation", "color")),
-                              canvas_width, canvas_height)
-    return GaussianVideo(params.reshape(t, counts[0], NUM_PARAMS), canvas_width, canvas_height, fps)
+    n = max(1, int(counts.max()))
+    source = dict(source or {})
+    source.pop(FRAME_COUNTS, None)
+    if np.all(counts == n):
+        out = params.reshape(t, n, NUM_PARAMS)
+    else:
+        pad = np.zeros(NUM_PARAMS, np.float32)
+        pad[2:4] = np.median(params[:, 2:4]) if len(params) else 1.0
+        out = np.broadcast_to(pad, (t, n, NUM_PARAMS)).copy()
+        slot = np.arange(len(frame)) - np.repeat(np.cumsum(counts) - counts, counts)  # index within its frame
+        out[frame, slot] = params
+        source[FRAME_COUNTS] = counts.tolist()
+    return GaussianVideo(out, canvas_width, canvas_height, fps, tuple(grid), source)
+
+
+def frame_counts(video: GaussianVideo) -> np.ndarray:
+    """Real Gaussians per frame [T] (N everywhere unless the clip was padded by points_to_video;
+    a malformed `frame_counts` entry is ignored)."""
+    t, n = video.params.shape[:2]
+    counts = video.source.get(FRAME_COUNTS) if isinstance(video.source, dict) else None
+    try:
+        counts = np.asarray(counts, np.int64)
+        if counts.shape == (t,) and np.all((counts >= 0) & (counts <= n)):
+            return counts
+    except (TypeError, ValueError):
+        pass
+    return np.full(t, n, np.int64)
+
+
+def video_to_points(video: GaussianVideo) -> dict:
+    """params_to_points without the padding of a clip written by points_to_video."""
+    points = params_to_points(video.params, video.canvas_width, video.canvas_height)
+    t, n = video.params.shape[:2]
+    counts = frame_counts(video)
+    if np.all(counts == n):
+        return points
+    keep = (np.arange(n)[None, :] < counts[:, None]).reshape(-1)
+    return {k: np.ascontiguousarray(v[keep]) for k, v in points.items()}
 
 
 def render_params_srgb(params: np.ndarray, canvas_width: int, canvas_height: int,

@@ -24,9 +24,13 @@ Importing this module imports neither torch nor numba; both are loaded on first 
 
 Patch renderers (torch and numpy): every Gaussian is evaluated on a rectangle of pixels covering its
 clipped box plus a one-pixel margin, where the reference's own test |dx| <= r decides membership.
-Gaussians are grouped by patch size (rounded up on a 1, 1.5, 2, 3, 4, 6, ... ladder, so at most ~2.25x
-wasted area) and each group is evaluated in fixed-size chunks: a Python loop over size groups and
-chunks, none over frames or Gaussians, and memory bounded by the chunk size.
+Gaussians are grouped by patch size (rounded up on a ladder of sizes, see _patch_plan) and each group is
+evaluated in fixed-size chunks: a Python loop over size groups and chunks, none over frames or
+Gaussians, and memory bounded by the chunk size.
+
+Invalid Gaussians (non-finite values, l11 = 0 or l22 = 0, |mean| or 3-sigma radius >= MAX_EXTENT px)
+contribute nothing and get zero gradients in every fast path (the reference would spread NaN over
+their box).
 """
 from __future__ import annotations
 
@@ -35,6 +39,7 @@ import math
 import numpy as np
 
 SIGMA_CUTOFF = 3.0
+MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or 3-sigma radius >= 1e7 px as invalid
 
 
 def box_radii(chol: "torch.Tensor") -> "torch.Tensor":
@@ -110,6 +115,7 @@ def _patch_plan(means: np.ndarray, chol: np.ndarray, width: int, height: int, bu
         rx = SIGMA_CUTOFF * np.abs(chol[:, 0])
         ry = SIGMA_CUTOFF * np.sqrt(chol[:, 1] ** 2 + chol[:, 2] ** 2)
         ok = np.isfinite(means).all(1) & np.isfinite(chol).all(1) & (chol[:, 0] != 0) & (chol[:, 2] != 0)
+        ok &= (np.abs(means).max(1) < MAX_EXTENT) & (rx < MAX_EXTENT) & (ry < MAX_EXTENT)  # as the numba path
         # One pixel of margin either side; the exact |dx| <= r test happens on the patch.
         fx0 = np.floor(means[:, 0] - rx - 0.5)
         fx1 = np.ceil(means[:, 0] + rx - 0.5)
@@ -345,7 +351,8 @@ def _torch_function():
             for idx, kh, kw in chunks:
                 with torch.enable_grad():
                     leaves = [t[idx].detach().requires_grad_() for t in (m, c, col)]
-                    contrib, pix = _torch_patches(*leaves, frame[idx], x0[idx], y0[idx], kh, kw, width, height)
+                    contrib, pix = _torch_patches(*leaves, frame[idx], x0[idx], y0[idx], kh, kw, width,
+                                                  height)
                     loss = (contrib * go[pix]).sum()
                     d = torch.autograd.grad(loss, leaves)
                 gm[idx], gc[idx], gcol[idx] = d

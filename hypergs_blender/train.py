@@ -161,7 +161,7 @@ def run(args) -> None:
             prefetch.start(step + 1)
         lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
         for group in optimizer.param_groups:
-            group["lr"] = lr
+            group["lr"] = lr * group.get("lr_scale", 1.0)
         anchors, cell = anchor_inputs(n, device)
         with amp:
             params = train_model(frames, anchors, cell)

@@ -41,8 +41,13 @@ def _open(path):
 
 
 def probe(path) -> VideoInfo:
-    """Size, frame rate and frame count. Counts by decoding when the container does not say."""
+    """Size, frame rate and frame count. Counts by decoding when the container does not say.
+    Image sequences (a frame-number pattern, a folder, one file of the sequence) go to OpenImageIO."""
     import av
+
+    from . import image_sequence
+    if image_sequence.is_image_sequence(path):
+        return image_sequence.probe(path)
 
     container, stream = _open(path)
     with container:
@@ -77,6 +82,10 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
     """
     import av
 
+    from . import image_sequence
+    if image_sequence.is_image_sequence(path):
+        yield from image_sequence.iter_frames(path, indices, size)
+        return
     wanted = None if indices is None else sorted(set(indices))
     container, stream = _open(path)
     with container:

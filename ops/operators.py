@@ -1,5 +1,5 @@
 """Operators (public interface): hypergs.import_video, hypergs.convert_strip, hypergs.reencode,
-hypergs.edit_frame.
+hypergs.edit_frame, hypergs.import_clip, hypergs.export_clip, hypergs.embed_clip.
 
 The encoding operators share one pattern: validate on the main thread, encode on a worker thread
 (EncodeJob) while a modal operator shows progress and listens for Esc, then write the result into
@@ -8,17 +8,21 @@ the scene as it was, and a finished run is one undo step. Invoked from the UI th
 executed from a script or in background mode (no window: timers do not tick there) they run
 synchronously and return when done.
 """
-import math
 import os
+import re
 import traceback
 
 import bpy
-from bpy.props import BoolProperty, IntProperty, StringProperty
-from bpy_extras.io_utils import ImportHelper
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy_extras.io_utils import ExportHelper, ImportHelper
 
+from ..hypergs_blender import image_sequence
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
+from ..hypergs_blender.image_sequence import IMAGE_EXTENSIONS
+from ..hypergs_blender.points import clip_frame_index
 from ..hypergs_blender.video import VIDEO_EXTENSIONS
+from . import linked
 from . import scene as clip_scene
 from .jobs import EncodeJob, EncodeRequest, describe
 from .props import GAUSSIAN_COUNT, PATCH_GRID
@@ -118,23 +122,47 @@ def _summary(obj, result, changed) -> str:
 
 
 def _check_file(path: str) -> str:
+    """An absolute path to a video file or an image sequence (a file of it, a frame-number pattern
+    such as `shot_####.png`, or its folder); raises HyperGSError naming what is wrong."""
     if not path:
         raise HyperGSError("No video file given")
     path = bpy.path.abspath(path)
+    if image_sequence.is_image_sequence(path):
+        image_sequence.list_frames(path)  # VideoError: no such file / no matching files / ...
+        return path
     if not os.path.isfile(path):
         raise HyperGSError(f"{path}: no such video file")
     return path
 
 
+_FRAME_FIELD = re.compile(r"(#+|%0?\d*d|\{frame(:0?\d*d)?\}|\d+)$")
+
+
+def _clip_name(path: str) -> str:
+    """Object name for a source: the file's stem; for an image sequence without its frame number."""
+    p = os.path.normpath(path)
+    if not image_sequence.is_image_sequence(p):
+        return os.path.splitext(os.path.basename(p))[0]
+    stem = os.path.basename(p) if os.path.isdir(p) else os.path.splitext(os.path.basename(p))[0]
+    name = _FRAME_FIELD.sub("", stem).rstrip("._- ")
+    return name or os.path.basename(os.path.dirname(p)) or "sequence"
+
+
+def _scene_fps(scene) -> float:
+    return scene.render.fps / scene.render.fps_base
+
+
 class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper):
-    """Encode a video as 2D Gaussians: one object whose points follow the scene frame"""
+    """Encode a video or an image sequence (one of its files, or a pattern such as shot_####.png)
+    as 2D Gaussians: one object whose points follow the scene frame"""
 
     bl_idname = "hypergs.import_video"
     bl_label = "Import Video as Gaussians"
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ".mp4"
-    filter_glob: StringProperty(default=";".join("*" + e for e in VIDEO_EXTENSIONS), options={"HIDDEN"})
+    filter_glob: StringProperty(default=";".join("*" + e for e in VIDEO_EXTENSIONS + IMAGE_EXTENSIONS),
+                                options={"HIDDEN"})
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
     patch_grid: IntProperty(**PATCH_GRID)
 
@@ -152,7 +180,9 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
         return EncodeRequest(self._path, self.gaussian_count, self.patch_grid)
 
     def apply(self, context, result):
-        name = os.path.splitext(os.path.basename(self._path))[0]
+        name = _clip_name(self._path)
+        if image_sequence.is_image_sequence(self._path):  # image files have no frame rate: the scene's
+            result.video.fps = _scene_fps(context.scene)
         obj = clip_scene.create_clip_object(
             context.view_layer.active_layer_collection.collection, name, result.video,
             frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
@@ -185,7 +215,7 @@ def _sequencer_scene(context):
 
 
 class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
-    """Convert the active movie strip to 2D Gaussians (keeps its timing; mutes the strip)"""
+    """Convert the active movie or image-sequence strip to 2D Gaussians (keeps its timing; mutes the strip)"""
 
     bl_idname = "hypergs.convert_strip"
     bl_label = "Convert Strip to Gaussians"
@@ -210,18 +240,23 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
         strip = editor.active_strip if editor is not None else None
         if strip is None:
             raise HyperGSError("No active strip: select a movie strip in the Sequencer")
-        if strip.type != "MOVIE":
-            raise HyperGSError(f"The active strip '{strip.name}' is not a movie strip")
+        if strip.type not in ("MOVIE", "IMAGE"):
+            raise HyperGSError(f"The active strip '{strip.name}' is not a movie strip or an image sequence")
         return scene, strip
 
     def make_request(self, context):
         scene, strip = self._strip(context)
-        path = _check_file(bpy.path.abspath(strip.filepath, library=getattr(strip.id_data, "library", None)))
-        first = int(round(strip.frame_final_start - strip.frame_start + strip.animation_offset_start))
+        library = getattr(strip.id_data, "library", None)
+        # Index of the strip's first shown frame in its source (trim and hold offsets), and how many.
+        first = max(0, int(round(strip.frame_final_start - strip.frame_start + strip.animation_offset_start)))
         count = int(strip.frame_final_duration)
+        if strip.type == "IMAGE":
+            path, first = _image_strip_source(strip, library, first, count)
+        else:
+            path = _check_file(bpy.path.abspath(strip.filepath, library=library))
+        self._path = path
         self._target = (scene.name, strip.name, int(strip.frame_final_start))
-        return EncodeRequest(path, self.gaussian_count, self.patch_grid, start=max(0, first),
-                             stop=max(0, first) + count)
+        return EncodeRequest(path, self.gaussian_count, self.patch_grid, start=first, stop=first + count)
 
     def apply(self, context, result):
         scene_name, strip_name, frame_start = self._target
@@ -231,10 +266,12 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
             raise HyperGSError(f"The strip '{strip_name}' is gone")
         collection = (context.view_layer.active_layer_collection.collection if scene == context.scene
                       else scene.collection)
+        if strip.type == "IMAGE":  # image files have no frame rate: the scene's
+            result.video.fps = _scene_fps(scene)
         obj = clip_scene.create_clip_object(
             collection, strip.name, result.video, frame_start=frame_start, speed=1.0,
             psnr=result.psnr, seconds=result.seconds, encoder=result.encoder,
-            source=bpy.path.abspath(strip.filepath), source_start=int(result.video.source["frames"][0]))
+            source=self._path, source_start=int(result.video.source["frames"][0]))
         strip.mute = True  # the sequencer's output would replace the render otherwise
         changed = ["strip muted"]
         if scene.render.use_sequencer and not any(
@@ -248,6 +285,25 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
         return _summary(obj, result, changed)
 
 
+def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, int]:
+    """(the sequence's first file, index of the strip's first shown image among the sequence's files)
+    for an image strip. The strip's images from `first` on must be consecutive files of one
+    numbered sequence (what Add > Image/Sequence makes): the encoder reads that sequence."""
+    names = [element.filename for element in strip.elements]
+    used = names[first:first + count]
+    if len(names) < 2 or len(used) < count or not used:
+        raise HyperGSError(f"The strip '{strip.name}' shows a single image, not an image sequence")
+    directory = bpy.path.abspath(strip.directory, library=library)
+    path = _check_file(os.path.join(directory, used[0]))
+    frames = image_sequence.list_frames(path)
+    position = {os.path.normcase(f.name): i for i, (_, f) in enumerate(frames)}
+    start = position.get(os.path.normcase(used[0]))
+    if start is None or [position.get(os.path.normcase(n)) for n in used] != list(range(start, start + count)):
+        raise HyperGSError(f"The images of the strip '{strip.name}' are not consecutive files of one numbered "
+                           f"sequence in {directory} (such as {used[0]} and the files numbered after it)")
+    return str(frames[0][1]), start  # the sequence's first file: `start` counts from it (as re-encode does)
+
+
 class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
     """Encode the clip's source again with the panel's Gaussian count and patch grid (replaces its points)"""
 
@@ -257,7 +313,8 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         obj = context.object
-        return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip and context.mode == "OBJECT"
+        return (obj is not None and obj.type == "MESH" and obj.hypergs.is_clip and not obj.hypergs.linked
+                and context.mode == "OBJECT")
 
     def invoke(self, context, event):
         self.use_modal = True
@@ -287,7 +344,7 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
 
 def clip_frame(obj, scene_frame: int) -> int:
     s = obj.hypergs
-    return math.floor((scene_frame - s.frame_start) * s.speed + 1e-4)
+    return clip_frame_index(scene_frame, s.frame_start, s.speed)
 
 
 class HYPERGS_OT_edit_frame(bpy.types.Operator):
@@ -300,8 +357,8 @@ class HYPERGS_OT_edit_frame(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         obj = context.object
-        return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip and context.mode in {
-            "OBJECT", "EDIT_MESH"}
+        return (obj is not None and obj.type == "MESH" and obj.hypergs.is_clip and not obj.hypergs.linked
+                and context.mode in {"OBJECT", "EDIT_MESH"})
 
     def execute(self, context):
         obj = context.object
@@ -330,5 +387,262 @@ def show_only_frame(mesh, frame: int) -> bool:
     return True
 
 
+# ----------------------------------------------------------------------------------------------------
+# Gaussian video files: .hgs (compressed), .usd/.usda/.usdc, .npz (float32)
+
+CLIP_GLOB = "*.hgs;*.usd;*.usda;*.usdc;*.npz"
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
+
+
+def _active_clip(context):
+    obj = getattr(context, "active_object", None) or getattr(context, "object", None)
+    return obj if obj is not None and obj.type == "MESH" and obj.hypergs.is_clip else None
+
+
+def _settings_from_source(source) -> dict:
+    """create_clip_object settings from a clip file's free-form `source` metadata (best effort)."""
+    source = source if isinstance(source, dict) else {}
+
+    def number(key, kind, default):
+        try:
+            return kind(source.get(key) or default)
+        except (TypeError, ValueError):
+            return default
+    frames = source.get("frames")
+    try:
+        start = max(0, int(frames[0])) if frames else 0
+    except (TypeError, ValueError, IndexError, KeyError):
+        start = 0
+    return dict(psnr=number("psnr", float, 0.0), seconds=number("encode_seconds", float, 0.0),
+                encoder=str(source.get("encoder") or ""), source=str(source.get("path") or ""), source_start=start)
+
+
+class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
+    """Import a Gaussian video (.hgs, .usd, .npz) as a clip object: embedded in the .blend, or linked
+    to its .hgs file"""
+
+    bl_idname = "hypergs.import_clip"
+    bl_label = "Import Gaussian Video"
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+
+    filename_ext = ".hgs"
+    filter_glob: StringProperty(default=CLIP_GLOB, options={"HIDDEN"})
+    link: BoolProperty(name="Link", default=False,
+                       description="Read the Gaussians from the .hgs file at render time instead of copying "
+                                   "them into the .blend (smaller .blend; the points cannot be edited)")
+
+    def invoke(self, context, event):
+        if self.filepath:  # dropped on the 3D Viewport
+            return self.execute(context)
+        return ImportHelper.invoke(self, context, event)
+
+    def execute(self, context):
+        try:
+            message = self._import(context)
+        except Exception as e:  # what it made is removed again (create_clip_object)
+            if not isinstance(e, HyperGSError):
+                traceback.print_exc()
+            self.report({"ERROR"}, describe(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+    def _import(self, context) -> str:
+        from ..hypergs_blender.clip_io import load_clip
+        if not self.filepath:
+            raise HyperGSError("No Gaussian video file given")
+        path = bpy.path.abspath(self.filepath)
+        if self.link:
+            if os.path.splitext(path)[1].lower() != ".hgs":
+                raise HyperGSError(f"{os.path.basename(path)}: only .hgs files can be linked "
+                                   "(import .usd and .npz clips embedded)")
+            video = linked.verify(path)  # header, index and every frame checked before anything is made
+        else:
+            video = load_clip(path)
+        obj = clip_scene.create_clip_object(
+            context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
+            video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
+            **_settings_from_source(video.source))
+        changed = clip_scene.prepare_scene(context.scene)
+        clip_scene.select_only(context, obj)
+        s = obj.hypergs
+        text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "
+                f"{'linked to' if self.link else 'from'} {os.path.basename(path)}")
+        return text + ("; changed: " + ", ".join(changed) if changed else "")
+
+
+class HYPERGS_FH_clip(bpy.types.FileHandler):
+    """Drop a .hgs file on the 3D Viewport to import it."""
+
+    bl_idname = "HYPERGS_FH_clip"
+    bl_label = "Gaussian Video"
+    bl_import_operator = HYPERGS_OT_import_clip.bl_idname
+    bl_file_extensions = ".hgs"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return context.area is not None and context.area.type == "VIEW_3D"
+
+
+FORMATS = {"HGS": ".hgs", "USD": ".usd", "USDA": ".usda", "NPZ": ".npz"}
+
+
+class HYPERGS_OT_export_clip(bpy.types.Operator, ExportHelper):
+    """Export the active clip's Gaussians, as edited in Blender, to a Gaussian video file"""
+
+    bl_idname = "hypergs.export_clip"
+    bl_label = "Export Gaussian Video"
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+
+    filename_ext = ".hgs"
+    filter_glob: StringProperty(default=CLIP_GLOB, options={"HIDDEN"})
+    file_format: EnumProperty(
+        name="Format", default="HGS",
+        items=[("HGS", ".hgs", "Compressed HyperGS video (quantized to Bits per value)"),
+               ("USD", ".usd", "USD points with a time sample per frame (binary crate file)"),
+               ("USDA", ".usda", "USD points with a time sample per frame (text)"),
+               ("NPZ", ".npz", "Uncompressed float32 parameters (NumPy)")])
+    bits: IntProperty(name="Bits", default=8, min=1, max=16,
+                      description="Bits per value in a .hgs file (more: larger file, smaller error)")
+    link: BoolProperty(name="Link to File", default=False,
+                       description="Afterwards read the clip's Gaussians from the exported .hgs file: they leave "
+                                   "the .blend (and can no longer be edited there)")
+
+    @classmethod
+    def poll(cls, context):
+        return _active_clip(context) is not None
+
+    def invoke(self, context, event):
+        self.filename_ext = FORMATS[self.file_format]
+        if not self.filepath:  # the clip's name, next to the .blend (ExportHelper would use the .blend's name)
+            obj = _active_clip(context)
+            folder = os.path.dirname(bpy.data.filepath) if bpy.data.filepath else ""
+            self.filepath = os.path.join(folder, bpy.path.clean_name(obj.name) + self.filename_ext)
+        return ExportHelper.invoke(self, context, event)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(self, "file_format")
+        if self.file_format == "HGS":
+            layout.prop(self, "bits")
+            layout.prop(self, "link")
+
+    def check(self, context):
+        # The Format menu picks the suffix (a typed .usd etc. is replaced), as Blender's glTF exporter does.
+        self.filename_ext = FORMATS[self.file_format]
+        return ExportHelper.check(self, context)
+
+    def execute(self, context):
+        obj = _active_clip(context)
+        if obj is None:
+            self.report({"ERROR"}, "No active HyperGS clip to export")
+            return {"CANCELLED"}
+        try:
+            message = self._export(context, obj)
+        except Exception as e:
+            if not isinstance(e, HyperGSError):
+                traceback.print_exc()
+            self.report({"ERROR"}, describe(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+    def _target(self) -> str:
+        """The path to write: a script's filepath keeps any clip suffix; otherwise the format's is added."""
+        if not self.filepath:
+            raise HyperGSError("No file name given")
+        path = bpy.path.abspath(self.filepath)
+        if os.path.splitext(path)[1].lower() in (*FORMATS.values(), ".usdc"):
+            return path
+        return path + FORMATS[self.file_format]
+
+    def _export(self, context, obj) -> str:
+        from ..hypergs_blender.clip_io import save_clip
+        path = self._target()
+        suffix = os.path.splitext(path)[1].lower()
+        if self.link and suffix != ".hgs":
+            raise HyperGSError("Link to File needs a .hgs file")
+        if self.link and obj.mode != "OBJECT":
+            raise HyperGSError(f"'{obj.name}' is in {obj.mode.title()} Mode: leave it to link the clip to a file")
+        if not os.path.isdir(os.path.dirname(path) or "."):
+            raise HyperGSError(f"{os.path.dirname(path)}: no such folder")
+        video, dropped = clip_video(obj)
+        options = {"bits": self.bits}
+        if suffix in USD_SUFFIXES:
+            options["start_frame"] = obj.hypergs.frame_start
+        save_clip(video, path, **options)
+        linked.forget(path)  # a linked clip reading this file sees the new version
+        if self.link:
+            clip_scene.link_clip(obj, path)
+        text = (f"HyperGS: '{obj.name}': {video.num_frames} frames exported to {os.path.basename(path)} "
+                f"({os.path.getsize(path) / 1e6:.2f} MB)")
+        if dropped:
+            text += f"; {dropped} point(s) with a zero scale or invalid values left out"
+        return text + ("; the clip is now linked to it" if self.link else "")
+
+
+def clip_video(obj):
+    """(GaussianVideo, points left out) of a clip as it is now: an embedded clip's mesh with the
+    user's edits (Edit Mode included; modifiers other than the frame filter are not applied), or a
+    linked clip's file."""
+    from ..hypergs_blender.clip_io import load_clip
+    from ..hypergs_blender.points import frame_counts, points_to_video
+    s = obj.hypergs
+    if s.linked:
+        return load_clip(clip_scene.linked_file(obj)), 0
+    if s.canvas_width <= 0 or s.canvas_height <= 0:
+        raise HyperGSError(f"'{obj.name}' has no canvas size")
+    if obj.mode == "EDIT":
+        # In Edit Mode the mesh's attributes are the edit mesh's layers (no `position`): read a copy
+        # of the mesh synced from the edit mesh instead.
+        obj.update_from_editmode()
+        mesh = obj.data.copy()
+        try:
+            points = clip_scene.read_clip_points(mesh)
+        finally:
+            bpy.data.meshes.remove(mesh)
+    else:
+        points = clip_scene.read_clip_points(obj.data)
+    count = s.num_frames
+    source = dict(path=s.source, frames=list(range(s.source_start, s.source_start + count)), encoder=s.encoder,
+                  encode_seconds=s.encode_seconds, psnr=s.psnr)
+    video = points_to_video(points, s.canvas_width, s.canvas_height, s.fps, num_frames=count,
+                            grid=(s.grid, s.grid), source=source)
+    if video.num_frames != count:
+        video.source["frames"] = list(range(s.source_start, s.source_start + video.num_frames))
+    return video, len(points["frame"]) - int(frame_counts(video).sum())
+
+
+class HYPERGS_OT_embed_clip(bpy.types.Operator):
+    """Copy a linked clip's Gaussians from its .hgs file into the .blend, so its points can be edited"""
+
+    bl_idname = "hypergs.embed_clip"
+    bl_label = "Embed in .blend"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = _active_clip(context)
+        return obj is not None and obj.hypergs.linked and obj.mode == "OBJECT"
+
+    def execute(self, context):
+        from ..hypergs_blender.clip_io import load_clip
+        obj = _active_clip(context)
+        try:
+            video = load_clip(clip_scene.linked_file(obj))
+            name = os.path.basename(obj.hypergs.linked_path)
+            clip_scene.embed_clip(obj, video)
+        except Exception as e:  # load_clip fails before anything changes
+            if not isinstance(e, HyperGSError):
+                traceback.print_exc()
+            self.report({"ERROR"}, describe(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"HyperGS: '{obj.name}': {video.num_frames} frames embedded from {name}")
+        return {"FINISHED"}
+
+
 CLASSES = [HYPERGS_OT_import_video, HYPERGS_FH_video, HYPERGS_OT_convert_strip, HYPERGS_OT_reencode,
-           HYPERGS_OT_edit_frame]
+           HYPERGS_OT_edit_frame, HYPERGS_OT_import_clip, HYPERGS_FH_clip, HYPERGS_OT_export_clip,
+           HYPERGS_OT_embed_clip]

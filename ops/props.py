@@ -13,6 +13,11 @@ def _timing_changed(self, context):
     scene.sync_timing(self.id_data)
 
 
+def _linked_path_changed(self, context):
+    from . import scene
+    scene.refresh_linked(self.id_data)
+
+
 class HyperGSClipSettings(bpy.types.PropertyGroup):
     is_clip: BoolProperty(name="HyperGS Clip", default=False)
     source: StringProperty(name="Source", subtype="FILE_PATH", description="The video the clip was encoded from")
@@ -32,6 +37,12 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
                              default=1, update=_timing_changed)
     speed: FloatProperty(name="Speed", description="Clip frames per scene frame", default=1.0, min=0.001,
                          update=_timing_changed)
+    # Where the Gaussians live: in the mesh (embedded, the default) or in an external .hgs file.
+    linked: BoolProperty(name="Linked", default=False,
+                         description="The Gaussians are read from an external .hgs file at render time "
+                                     "(the mesh only outlines the image plane)")
+    linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed,
+                                description="The .hgs file a linked clip's Gaussians are read from")
     # Settings for the next Re-encode.
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
     patch_grid: IntProperty(**PATCH_GRID)

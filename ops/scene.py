@@ -8,6 +8,9 @@ Why one mesh and not one mesh per frame: it is plain data (no frame-change handl
 renders the same with or without the add-on's handlers, on a farm too), it saves and reloads with
 the .blend, Edit Mode edits and further Geometry Nodes modifiers apply per frame through the `frame`
 attribute, and the render engine reads the depsgraph-evaluated mesh, i.e. exactly what is shown.
+
+A clip linked to an external .hgs file (`hypergs.linked`, see linked.py for why) has a mesh with just
+the image plane's outline and no frame modifier; the engine reads its Gaussians from the file.
 """
 from __future__ import annotations
 
@@ -16,8 +19,10 @@ import math
 import bpy
 import numpy as np
 
+from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
-from ..hypergs_blender.points import params_to_points
+from ..hypergs_blender.points import video_to_points
+from . import linked as linked_files
 
 NODE_GROUP = "HyperGS Frames"
 MODIFIER = "HyperGS Frames"
@@ -50,8 +55,41 @@ def write_points(mesh, points: dict) -> None:
 
 def new_clip_mesh(name: str, video: GaussianVideo):
     mesh = bpy.data.meshes.new(name)
-    write_points(mesh, params_to_points(video.params, video.canvas_width, video.canvas_height))
+    write_points(mesh, video_to_points(video))  # a padded clip (see points_to_video) without its padding
     return mesh
+
+
+def _outline(canvas_width: int, canvas_height: int) -> np.ndarray:
+    aspect = canvas_width / max(1, canvas_height)
+    return np.array([[-aspect, -1, 0], [aspect, -1, 0], [aspect, 1, 0], [-aspect, 1, 0]], np.float32)
+
+
+def new_linked_mesh(name: str, canvas_width: int, canvas_height: int):
+    """A linked clip's mesh: the image plane's outline (4 vertices, 4 edges), no Gaussians."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(_outline(canvas_width, canvas_height).tolist(), [(0, 1), (1, 2), (2, 3), (3, 0)], [])
+    mesh.update()
+    return mesh
+
+
+def read_clip_points(mesh) -> dict:
+    """Every frame's points of an embedded clip's (original, Object Mode) mesh: position, scale,
+    rotation, color (RGB), frame. Raises HyperGSError when an attribute is missing or unreadable."""
+    from ..engine.geometry import read_points
+    points = read_points(mesh)
+    frame = mesh.attributes.get("frame")
+    if points is None or frame is None or frame.domain != "POINT" or frame.data_type not in ("INT", "FLOAT"):
+        raise HyperGSError(f"'{mesh.name}' lacks the clip's point attributes (scale, rotation, color, frame)")
+    values = np.empty(len(mesh.vertices), np.int32 if frame.data_type == "INT" else np.float32)
+    frame.data.foreach_get("value", values)
+    points["frame"] = np.floor(values + 0.5).astype(np.int64) if values.dtype != np.int32 else values
+    return points
+
+
+def linked_file(obj) -> str:
+    """Absolute path of a linked clip's file ('' when none is set)."""
+    path = obj.hypergs.linked_path
+    return bpy.path.abspath(path, library=obj.library) if path else ""
 
 
 def _socket(sockets, name, kind=None):
@@ -186,12 +224,17 @@ def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, en
 
 
 def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_start: int, speed: float,
-                       **settings):
+                       linked_path: str | None = None, **settings):
     """A new clip object in `collection`: mesh, settings, frame modifier. Returns it.
+    linked_path: link the clip to that .hgs file instead (`video` may then be its HgsReader: only
+    the header is used); the mesh is the image plane's outline and there is no frame modifier.
     On any failure what it made is removed again, so the scene is left as it was."""
     made = []
     try:
-        mesh = new_clip_mesh(name, video)
+        if linked_path:
+            mesh = new_linked_mesh(name, video.canvas_width, video.canvas_height)
+        else:
+            mesh = new_clip_mesh(name, video)
         made.append((bpy.data.meshes, mesh))
         obj = bpy.data.objects.new(name, mesh)
         made.insert(0, (bpy.data.objects, obj))
@@ -200,10 +243,14 @@ def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_sta
         store_settings(obj, video, **settings)
         obj.hypergs.frame_start = frame_start  # before the modifier: its update has nothing to sync
         obj.hypergs.speed = speed
-        groups_before = set(bpy.data.node_groups.keys())
-        mod = add_frame_modifier(obj)
-        if mod.node_group.name not in groups_before:
-            made.append((bpy.data.node_groups, mod.node_group))
+        if linked_path:
+            obj.hypergs.linked = True
+            obj.hypergs.linked_path = linked_path
+        else:
+            groups_before = set(bpy.data.node_groups.keys())
+            mod = add_frame_modifier(obj)
+            if mod.node_group.name not in groups_before:
+                made.append((bpy.data.node_groups, mod.node_group))
         collection.objects.link(obj)
     except BaseException:
         for datablocks, block in made:
@@ -212,17 +259,67 @@ def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_sta
     return obj
 
 
-def replace_clip_mesh(obj, video: GaussianVideo, **settings) -> None:
-    """Re-encode result: a new mesh for the object (modifiers and timing kept)."""
+def _swap_mesh(obj, mesh) -> None:
     old = obj.data
     name = old.name
-    mesh = new_clip_mesh(name, video)
     obj.data = mesh
     if old.users == 0:
         bpy.data.meshes.remove(old)
         mesh.name = name
+
+
+def replace_clip_mesh(obj, video: GaussianVideo, **settings) -> None:
+    """Re-encode result: a new mesh for the object (modifiers and timing kept)."""
+    _swap_mesh(obj, new_clip_mesh(obj.data.name, video))
     store_settings(obj, video, **settings)
     sync_timing(obj)
+
+
+def embed_clip(obj, video: GaussianVideo) -> None:
+    """Make a linked clip embedded: its Gaussians (the linked file's, as `video`) go into the mesh,
+    the frame modifier is added back (first in the stack), the link is dropped. Settings kept."""
+    _swap_mesh(obj, new_clip_mesh(obj.data.name, video))
+    s = obj.hypergs
+    s.linked = False
+    s.linked_path = ""
+    if frame_modifier(obj) is None:
+        add_frame_modifier(obj)
+        index = len(obj.modifiers) - 1
+        if index and hasattr(obj.modifiers, "move"):
+            obj.modifiers.move(index, 0)
+    sync_timing(obj)
+
+
+def link_clip(obj, path: str) -> None:
+    """Make a clip linked to `path` (a .hgs file holding its Gaussians, already written): the mesh
+    becomes the image plane's outline, the frame modifier goes. Timing and other modifiers kept."""
+    reader = linked_files.reader(path)
+    _swap_mesh(obj, new_linked_mesh(obj.data.name, reader.canvas_width, reader.canvas_height))
+    mod = frame_modifier(obj)
+    if mod is not None:
+        obj.modifiers.remove(mod)
+    obj.hypergs.linked = True
+    obj.hypergs.linked_path = path  # refresh_linked copies the file's header into the settings
+
+
+def refresh_linked(obj) -> None:
+    """After the linked file changed (path edited): its header into the settings, the outline to
+    its aspect. A missing or damaged file changes nothing here (the panel shows the problem)."""
+    s = obj.hypergs
+    if not s.linked:
+        return
+    try:
+        reader = linked_files.reader(linked_file(obj))
+    except HyperGSError:
+        return
+    s.num_frames, s.gaussians_per_frame = reader.num_frames, reader.num_gaussians
+    s.grid = max(1, reader.grid[0])
+    s.canvas_width, s.canvas_height, s.fps = reader.canvas_width, reader.canvas_height, reader.fps
+    mesh = obj.data
+    if obj.mode == "OBJECT" and len(mesh.vertices) == 4 and not mesh.attributes.get("frame"):
+        mesh.vertices.foreach_set("co", _outline(reader.canvas_width, reader.canvas_height).ravel())
+        mesh.update()
+    obj.update_tag()
 
 
 def select_only(context, obj) -> None:

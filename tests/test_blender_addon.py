@@ -59,7 +59,8 @@ def test_install_and_enable(session):
     r = step(session, "install")
     assert r["module"].startswith("bl_ext.user_default.hypergs")
     assert "/extensions/user_default/hypergs/" in r["file"]
-    assert r["operators"] == ["convert_strip", "edit_frame", "import_video", "reencode"]
+    assert r["operators"] == ["convert_strip", "edit_frame", "embed_clip", "export_clip", "import_clip",
+                              "import_video", "reencode"]
     assert r["engine"] and not r["torch_importable"]
 
 

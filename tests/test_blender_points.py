@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 from hypergs_blender.gaussians import GaussianVideo
-from hypergs_blender.points import (linear_to_srgb, params_to_points, points_to_params, points_to_video,
-                                    render_params_srgb, srgb_image_to_linear_rgba, srgb_to_linear)
+from hypergs_blender.points import (FRAME_COUNTS, clip_frame_index, frame_counts, linear_to_srgb, params_to_points,
+                                    points_to_params, points_to_video, render_params_srgb,
+                                    srgb_image_to_linear_rgba, srgb_to_linear, video_to_points)
 from hypergs_blender.render import render_frames
 
 
@@ -74,3 +75,52 @@ def test_render_pass_is_linear_and_bottom_up():
     np.testing.assert_allclose(rgba[1, :, :3], 0.21404, atol=1e-5)  # top row is last
     np.testing.assert_array_equal(rgba[0, :, :3], 0)
     np.testing.assert_array_equal(rgba[..., 3], 1)
+
+
+def test_clip_frame_index_matches_the_frame_filter():
+    assert [clip_frame_index(f, 1, 1.0) for f in (0, 1, 2, 70)] == [-1, 0, 1, 69]
+    assert [clip_frame_index(f, 10, 1 / 3) for f in (10, 12, 13, 16)] == [0, 0, 1, 2]  # the 1e-4 margin
+    assert clip_frame_index(5.5, 1, 2.0) == 9
+
+
+def test_ragged_frames_are_padded_and_unpadded():
+    """Points deleted in one frame and added in another: padded to N, the real counts recorded."""
+    p = random_params(3, 6, seed=5)
+    pts = params_to_points(p, 64, 48)
+    keep = np.ones(18, bool)
+    keep[[7, 8]] = False  # frame 1 loses two points
+    pts = {k: v[keep] for k, v in pts.items()}
+    extra = params_to_points(random_params(1, 1, seed=6), 64, 48)
+    extra["frame"][:] = 2  # frame 2 gains one
+    pts = {k: np.concatenate([pts[k], extra[k]]) for k in pts}
+    video = points_to_video(pts, 64, 48, 30.0, num_frames=5, grid=(2, 2), source={"path": "x.mp4"})
+    assert video.params.shape == (5, 7, 8) and video.fps == 30.0 and video.grid == (2, 2)
+    assert video.source == {"path": "x.mp4", FRAME_COUNTS: [6, 4, 7, 0, 0]}
+    assert frame_counts(video).tolist() == [6, 4, 7, 0, 0]
+    np.testing.assert_allclose(video.params[1, :4][:, [0, 1, 5]], p[1, [0, 3, 4, 5]][:, [0, 1, 5]], atol=2e-5)
+    np.testing.assert_array_equal(video.params[1, 4:, 5:8], 0)  # padding is invisible
+    assert np.all(video.params[..., 2:4] > 0)  # and a valid Gaussian for the codec
+    back = video_to_points(video)
+    assert len(back["frame"]) == 17
+    for k in ("position", "scale", "color"):
+        np.testing.assert_allclose(back[k], pts[k][np.argsort(pts["frame"], kind="stable")], atol=2e-5)
+    # the padding renders nothing
+    np.testing.assert_allclose(render_params_srgb(video.params[1], 64, 48, 32, 24),
+                               render_params_srgb(video.params[1, :4], 64, 48, 32, 24), atol=1e-6)
+
+
+def test_regular_clip_has_no_frame_counts_and_bad_points_are_left_out():
+    p = random_params(2, 4, seed=7)
+    pts = params_to_points(p, 64, 48)
+    video = points_to_video(pts, 64, 48, source={FRAME_COUNTS: [1, 1]})  # a stale entry is dropped
+    assert FRAME_COUNTS not in video.source and video.params.shape == (2, 4, 8)
+    pts["scale"][0] = 0  # a zero scale, a NaN, a negative frame: not Gaussians
+    pts["color"][1, 0] = np.nan
+    pts["frame"][5] = -1
+    pts["scale"][6] *= -1  # only the square of a scale matters
+    video = points_to_video(pts, 64, 48)
+    assert frame_counts(video).tolist() == [2, 3]
+    np.testing.assert_allclose(video.params[1, 1, 2:4], p[1, 2, 2:4], rtol=1e-5)
+    # malformed counts are ignored
+    video.source[FRAME_COUNTS] = ["a", None]
+    assert frame_counts(video).tolist() == [3, 3]

@@ -33,7 +33,7 @@ def test_local_model_starts_at_the_grid_floor():
     out = model(frames, anchors, cell)
     torch.testing.assert_close(out[0, 0, :, 0:2], anchors, atol=1e-3, rtol=0)
     # sigma 0.6 grid cells: the cell is 32 / 4 = 8 px
-    torch.testing.assert_close(out[..., 2:4], torch.full_like(out[..., 2:4], 4.8), atol=0.05, rtol=0)
+    torch.testing.assert_close(out[..., 2:4], torch.full_like(out[..., 2:4], 4.8), atol=0.15, rtol=0)
 
 
 def test_presets():

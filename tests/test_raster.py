@@ -33,9 +33,9 @@ def f32(*arrays):
     return [torch.as_tensor(np.asarray(a, np.float32), dtype=torch.float64) for a in arrays]
 
 
-def random_gaussians(b, n, width, height, c=3, seed=0, spread=1.0, sigma=(0.5, 6.0)):
+def random_gaussians(b, n, width, height, c=3, seed=0, sigma=(0.5, 6.0)):
     rng = np.random.default_rng(seed)
-    means = (rng.uniform(-0.1, 1.1, (b, n, 2)) * spread) * [width, height]
+    means = rng.uniform(-0.1, 1.1, (b, n, 2)) * [width, height]
     l11 = rng.uniform(*sigma, (b, n)) * rng.choice([-1, 1], (b, n))
     l22 = rng.uniform(*sigma, (b, n))
     l21 = rng.normal(0, sigma[1] / 2, (b, n))
@@ -86,8 +86,15 @@ def check_all(means, chol, colors, width, height, seed=1, grads=True):
 
 
 def test_random_gaussians():
-    ref = check_all(*random_gaussians(2, 60, 48, 40), 48, 40)
+    scene = random_gaussians(2, 60, 48, 40)
+    ref = check_all(*scene, 48, 40)
     assert float(ref.abs().max()) > 0.5  # the scene is not empty
+    if numba_available():  # the scene exercises both row paths of the numba kernels
+        from hypergs_blender import _raster_numba as rn
+
+        boxes, consts = rn._prepare(scene[0].float().numpy(), scene[1].float().numpy(), 48, 40)
+        full = consts[..., rn._FULL][boxes[..., 0] <= boxes[..., 1]]
+        assert 0.2 < full.mean() < 0.8
 
 
 @pytest.mark.parametrize("channels", [1, 4])
@@ -217,6 +224,28 @@ def test_invalid_gaussians_contribute_nothing():
     for backend in NUMPY_BACKENDS:
         out = rasterize_numpy(bad_m.numpy(), bad_c.numpy(), colors.numpy(), 16, 12, backend=backend)
         close(out, expected, 2e-6, f"invalid rasterize_numpy[{backend}]")
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba is not installed")
+def test_numba_survives_extreme_values():
+    """Magnitudes from 1e-38 to 1e38 (thin, absurdly sheared, far away), zeros, denormals, inf and NaN:
+    the kernels index only inside the image and return finite images and gradients (invalid Gaussians
+    add nothing), without crashing (they run without bounds checks)."""
+    rng = np.random.default_rng(11)
+    b, n = 4, 400
+    mag = lambda *shape: np.exp(rng.uniform(-87, 87, shape)) * rng.choice([-1, 1], shape)  # noqa: E731
+    special = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 1e-45, -1e-45, 3e38, -3e38])
+    pick = lambda *shape: np.where(rng.random(shape) < 0.1, rng.choice(special, shape), mag(*shape))  # noqa
+    means = np.where(rng.random((b, n, 2)) < 0.5, rng.uniform(-5, 25, (b, n, 2)), pick(b, n, 2))
+    chol = np.where(rng.random((b, n, 3)) < 0.5, rng.uniform(-5, 5, (b, n, 3)), pick(b, n, 3))
+    m, c, col = (torch.from_numpy(np.asarray(a, np.float32)) for a in (means, chol, rng.random((b, n, 3))))
+    leaves = [t.clone().requires_grad_(True) for t in (m, c, col)]
+    out = rasterize(*leaves, 20, 15, backend="numba")
+    out.square().sum().backward()
+    assert torch.isfinite(out).all()
+    for t in leaves:
+        assert torch.isfinite(t.grad).all()
+    assert float(out.detach().abs().max()) > 0
 
 
 def test_float32_inputs_give_float32_and_empty_inputs():

@@ -32,6 +32,8 @@ def test_tiny_model_overfits_one_clip(parametrization):
     frames = torch.from_numpy(clip)
     model = HyperGS(ModelConfig(**TINY, parametrization=parametrization, max_gaussians=64))
     optimizer = Lamb(parameter_groups(model), lr=1e-2)
+    for group in optimizer.param_groups:
+        group["lr"] = 1e-2 * group["lr_scale"]
     reg = AdaptiveRegularizer()
     anchors, cell = anchor_inputs(64)
     psnrs = []

@@ -1,20 +1,11 @@
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 
 from hypergs_blender.errors import VideoError
+from conftest import write_video
 from hypergs_blender.video import iter_frames, probe, read_clip, resize_crop, sample_indices
-
-
-def write_video(path, frames, fps=12):
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
-        stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
-        for f in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(f, format="rgb24")))
-        container.mux(stream.encode())
 
 
 @pytest.fixture

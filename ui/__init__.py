@@ -2,11 +2,15 @@
 from __future__ import annotations
 
 import os
+import textwrap
 
 import bpy
 
-from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_import_video,
+from ..ops import linked
+from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
+                             HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
                              HYPERGS_OT_reencode)
+from ..ops.scene import linked_file
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -28,6 +32,8 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         s = obj.hypergs
         col = layout.column(align=True)
         col.label(text=f"Source: {os.path.basename(s.source) or '-'}", icon="FILE_MOVIE")
+        if s.linked:
+            self.draw_linked(obj, layout.box())
         info = layout.column(align=True)
         for label, value in (("Frames", f"{s.num_frames}  ({s.canvas_width} x {s.canvas_height}, {s.fps:.3g} fps)"),
                              ("Gaussians per Frame", f"{s.gaussians_per_frame}  (grid {s.grid} x {s.grid})"),
@@ -41,15 +47,39 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         timing = layout.column(align=True)
         timing.prop(s, "frame_start")
         timing.prop(s, "speed")
+        layout.operator(HYPERGS_OT_export_clip.bl_idname, text="Export Gaussian Video...", icon="EXPORT")
+        if s.linked:
+            return
         layout.operator(HYPERGS_OT_edit_frame.bl_idname, icon="EDITMODE_HLT")
         box = layout.box()
         box.prop(s, "gaussian_count")
         box.prop(s, "patch_grid")
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
+    @staticmethod
+    def draw_linked(obj, box):
+        """The linked file: its path (editable), and what is wrong with it, if anything."""
+        box.label(text="Linked: Gaussians are read from this file at render time", icon="LINKED")
+        box.prop(obj.hypergs, "linked_path")
+        problem = linked.problem(linked_file(obj))
+        if problem:
+            col = box.column(align=True)
+            col.alert = True
+            lines = textwrap.wrap(problem, 60) or [problem]
+            col.label(text=lines[0], icon="ERROR")
+            for line in lines[1:4]:
+                col.label(text=line, icon="BLANK1")
+            col.label(text="The clip renders nothing until the file is fixed", icon="BLANK1")
+        box.operator(HYPERGS_OT_embed_clip.bl_idname, icon="IMPORT")
+
 
 def menu_import(self, context):
     self.layout.operator(HYPERGS_OT_import_video.bl_idname, text="Video as Gaussians (.mp4, .mov, ...)")
+    self.layout.operator(HYPERGS_OT_import_clip.bl_idname, text="Gaussian Video (.hgs/.usd/.npz)")
+
+
+def menu_export(self, context):
+    self.layout.operator(HYPERGS_OT_export_clip.bl_idname, text="Gaussian Video (.hgs/.usd)")
 
 
 def menu_strip(self, context):
@@ -57,7 +87,8 @@ def menu_strip(self, context):
     self.layout.operator(HYPERGS_OT_convert_strip.bl_idname, icon="MOD_PARTICLES")
 
 
-MENUS = [("TOPBAR_MT_file_import", menu_import), ("SEQUENCER_MT_strip", menu_strip)]
+MENUS = [("TOPBAR_MT_file_import", menu_import), ("TOPBAR_MT_file_export", menu_export),
+         ("SEQUENCER_MT_strip", menu_strip)]
 
 
 def register():

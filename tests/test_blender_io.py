@@ -1,0 +1,516 @@
+"""Gaussian video files in the real bpy wheel: File > Export / Import (.hgs, .usd, .npz) with edits,
+clips linked to an external .hgs file (render, missing and damaged files), image sequences.
+
+One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares): this
+file run as a script writes what it measured to JSON; the tests below check it.
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import traceback
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_blender_addon import ROOT, _import, diff, read_mesh, snapshot  # noqa: E402
+
+ENCODER = "floor"
+T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
+SEQUENCE = 6  # PNG frames written for the image-sequence tests
+SESSION_TIMEOUT = 300
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    work = tmp_path_factory.mktemp("blender_io")
+    sys.path.insert(0, str(ROOT / "tools"))
+    import blender_main_job
+    zip_path = blender_main_job.build_zip(work / "dist")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", ENCODER))
+    out = work / "session.json"
+    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)
+    proc = subprocess.run([python, __file__, str(zip_path), str(work), str(out)], env=env,
+                          capture_output=True, text=True, timeout=SESSION_TIMEOUT)
+    if not out.is_file():
+        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    results = json.loads(out.read_text())
+    results["console"] = proc.stdout + proc.stderr  # Blender prints render reports there
+    return results
+
+
+def step(session, name):
+    result = session.get(name)
+    assert result is not None, f"step {name} did not run"
+    assert "error" not in result, result["error"]
+    return result
+
+
+def test_import_npz_builds_a_clip_object(session):
+    r = step(session, "import_npz")
+    assert r["result"] == ["FINISHED"]
+    assert (r["num_frames"], r["gaussians_per_frame"], r["canvas"], r["fps"]) == (T, N, list(CANVAS), 30.0)
+    assert r["vertices"] == T * N and r["modifiers"] == ["HyperGS Frames"] and not r["linked"]
+    assert r["max_error"] < 5e-5
+    assert r["source"] == "/videos/orig.mp4" and r["source_start"] == 5 and r["psnr"] == pytest.approx(31.5)
+
+
+@pytest.mark.parametrize("suffix", [".hgs", ".usd", ".usda", ".npz"])
+def test_export_and_reimport_gives_the_same_gaussians(session, suffix):
+    r = step(session, "round_trip")[suffix]
+    assert r["export"] == ["FINISHED"] and r["import"] == ["FINISHED"]
+    assert r["vertices"] == T * N and r["num_frames"] == T and r["canvas"] == list(CANVAS)
+    assert r["fps"] == pytest.approx(30.0) and r["psnr"] == pytest.approx(31.5)
+    if suffix == ".hgs":  # quantized: every value within half a quantization step (8 bits)
+        assert all(e <= b for e, b in zip(r["errors"], r["bounds"])), r
+        assert r["max_error_vs_file"] < 5e-5  # and the mesh holds exactly what the file decodes to
+    else:
+        assert max(r["errors"]) < 1e-4, r
+
+
+@pytest.mark.parametrize("suffix", [".hgs", ".usd"])
+def test_edits_survive_export_and_import(session, suffix):
+    r = step(session, "edits")[suffix]
+    assert r["export"] == ["FINISHED"] and r["import"] == ["FINISHED"]
+    assert r["vertices"] == T * N - 1  # the deleted point stays deleted (padded in the file, dropped again)
+    assert r["frame_counts"] == [N] * 5 + [N - 1] + [N] * (T - 6)
+    assert r["moved_error"] < r["moved_bound"]  # the moved point is where it was moved to
+    assert r["moved_distance"] > 0.29
+    assert r["max_error"] < r["bound"]  # everything else as edited
+
+
+def test_linked_clip_renders_like_the_embedded_one(session):
+    r = step(session, "linked")
+    assert r["result"] == ["FINISHED"]
+    assert r["linked"] and r["path_shown"] and r["mesh_vertices"] == 4 and r["modifiers"] == []
+    assert (r["num_frames"], r["gaussians_per_frame"]) == (T, N)
+    for frame, f in r["frames"].items():
+        assert f["max_diff_linked_vs_embedded"] <= 1 / 255 + 1e-6, (frame, f)
+        assert f["brightness"] > 0.01, (frame, f)
+    assert r["frames_differ"]  # the linked clip follows the scene frame
+    assert r["outside_clip_black"]
+    assert r["problem_when_fine"] is None
+    assert r["edit_frame_poll"] is False and r["reencode_poll"] is False
+
+
+def test_panel_shows_the_linked_file(session):
+    r = step(session, "broken")
+    fine, embedded = r["panel_fine"], r["panel_embedded"]
+    assert ["prop", "linked_path", None] in fine and ["operator", "hypergs.embed_clip", "IMPORT"] in fine
+    assert not any(c[2] == "ERROR" for c in fine)
+    assert ["operator", "hypergs.edit_frame", "EDITMODE_HLT"] not in fine
+    assert ["operator", "hypergs.edit_frame", "EDITMODE_HLT"] in embedded
+    assert not any(c[1] == "linked_path" for c in embedded)
+
+
+@pytest.mark.parametrize("case", ["deleted", "corrupted", "truncated"])
+def test_broken_linked_file_renders_black_with_a_warning(session, case):
+    r = step(session, "broken")[case]
+    assert r["render"] == ["FINISHED"] and r["black"], r
+    assert r["expect"] in r["problem"], r["problem"]
+    assert r["panel_error"] and r["panel_error"] in r["problem"]  # the panel shows it
+    assert f"HyperGS: 'linked': {r['problem']}" in session["console"]  # the render's warning
+    assert r["unchanged"], r["diff"]
+    assert r["restored_matches"]  # the file back: it renders again, the scene is fine
+
+
+def test_embed_export_link_switch_storage(session):
+    r = step(session, "storage")
+    assert r["embed_missing"]["raised"] and "no such file" in r["embed_missing"]["message"]
+    assert r["embed_missing"]["unchanged"], r["embed_missing"]["diff"]
+    assert r["embedded"] == dict(linked=False, vertices=T * N - 1, modifiers=["HyperGS Frames"])  # as edited
+    assert r["embedded_render_diff"] <= 1 / 255 + 1e-6
+    assert r["relinked"] == dict(linked=True, vertices=4, modifiers=[])
+    assert r["relinked_render_diff"] <= 1 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("case", ["link_usd", "missing", "damaged", "export_no_folder", "link_export_usd"])
+def test_io_errors_are_reported_and_change_nothing(session, case):
+    r = step(session, "errors")[case]
+    assert r["raised"] and "Traceback" not in r["message"]
+    assert r["expect"].lower() in r["message"].lower(), r["message"]
+    assert r["unchanged"], r["diff"]
+
+
+def test_import_video_reads_an_image_sequence(session):
+    r = step(session, "import_sequence")
+    for case in ("file", "pattern"):
+        c = r[case]
+        assert c["result"] == ["FINISHED"] and c["name"] == "frame"
+        assert c["num_frames"] == SEQUENCE and c["fps"] == pytest.approx(25.0)
+        assert c["max_error_vs_core"] < 5e-5  # the same frames the core encodes
+
+
+def test_image_strip_converts_keeping_its_timing(session):
+    r = step(session, "image_strip")
+    assert r["result"] == ["FINISHED"] and r["muted"]
+    assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 11  # trimmed by one at the start
+    assert r["source"].endswith("frame_0001.png") and r["source_start"] == 1  # re-encode reads the same
+    assert r["max_error_vs_core"] < 5e-5  # its clip frame 0 is the sequence's second image
+    assert r["still_image"]["raised"] and "single image" in r["still_image"]["message"]
+
+
+# ----------------------------------------------------------------------------------------------------
+# Blender side (run as a script: python test_blender_io.py ZIP WORKDIR OUT.json)
+
+def run_session(zip_path, work, out_path):
+    sys.path.insert(0, str(ROOT / "tools"))
+    import blender_main_job as job
+
+    work = Path(work)
+    results = {}
+
+    def record(name):
+        def wrap(fn):
+            try:
+                results[name] = fn()
+            except BaseException:
+                results[name] = {"error": traceback.format_exc()}
+            Path(out_path).write_text(json.dumps(results, indent=1, default=str))
+            return fn
+        return wrap
+
+    bpy = job.start_blender(work / "user")
+    addon = job.install_extension(bpy, zip_path)
+    linked = _import(addon, "ops.linked")
+    from hypergs_blender.codec import Quantizer
+    from hypergs_blender.encode import encode_video
+    from hypergs_blender.gaussians import GaussianVideo
+    from hypergs_blender.hgs import load_hgs
+    from hypergs_blender.image_sequence import write_image
+    from hypergs_blender.points import points_to_params
+
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = 25, 1.0
+    for o in list(bpy.data.objects):
+        bpy.data.objects.remove(o)
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = *CANVAS, 100
+    scene.render.dither_intensity = 0.0  # so that "black" is exactly 0 in the 8-bit PNG
+
+    rng = np.random.default_rng(0)
+    params = np.empty((T, N, 8), np.float32)
+    params[..., 0:2] = rng.uniform(-1, 1, (T, N, 2))
+    params[..., 2:4] = rng.uniform(1.0, 5.0, (T, N, 2))
+    params[..., 4] = rng.uniform(0, 2 * np.pi, (T, N))
+    params[..., 5:8] = rng.uniform(0.0, 0.25, (T, N, 3))
+    original = GaussianVideo(params, *CANVAS, fps=30.0, grid=(1, 1),
+                             source=dict(path="/videos/orig.mp4", frames=list(range(5, 5 + T)), encoder="floor",
+                                         psnr=31.5))
+    original.save(work / "orig.npz")
+    bounds = Quantizer.fit(params, 8).max_error()
+
+    def mesh_params(obj):
+        pts = read_mesh(obj.data)
+        order = np.argsort(pts["frame"], kind="stable")
+        p = points_to_params(pts["position"][order], pts["scale"][order], pts["rotation"][order],
+                             pts["color"][order], obj.hypergs.canvas_width, obj.hypergs.canvas_height)
+        return p, pts["frame"][order]
+
+    def errors(a, b):
+        """Per-parameter max error in the codec's domain (log scales, rotation modulo pi)."""
+        d = np.abs(a - b)
+        d[..., 2:4] = np.abs(np.log(a[..., 2:4]) - np.log(b[..., 2:4]))
+        r = np.mod(a[..., 4] - b[..., 4], np.pi)
+        d[..., 4] = np.minimum(r, np.pi - r)
+        return d.reshape(-1, 8).max(0)
+
+    def activate(obj):
+        for o in bpy.context.selected_objects:
+            o.select_set(False)
+        obj.select_set(True)
+        bpy.context.view_layer.objects.active = obj
+
+    def render(frame, name, show):
+        """F12 at `frame` with only the objects in `show` rendered."""
+        for o in bpy.data.objects:
+            if o.type == "MESH":
+                o.hide_render = o not in show
+        png = work / f"{name}.png"
+        scene.frame_set(frame)
+        scene.render.image_settings.file_format = "PNG"
+        scene.render.image_settings.color_depth = "8"
+        scene.render.image_settings.color_mode = "RGB"
+        scene.render.filepath = str(png)
+        result = bpy.ops.render.render(write_still=True)
+        return job.read_png(bpy, png), sorted(result)
+
+    def attempt(expect, call):
+        before = snapshot(bpy)
+        message, raised = "", False
+        try:
+            call()
+        except RuntimeError as e:
+            message, raised = str(e), True
+        after = snapshot(bpy)
+        return dict(raised=raised, message=message, expect=expect, unchanged=before == after,
+                    diff=diff(before, after))
+
+    @record("import_npz")
+    def _():
+        result = bpy.ops.hypergs.import_clip(filepath=str(work / "orig.npz"))
+        obj = bpy.data.objects["orig"]
+        s = obj.hypergs
+        p, frames = mesh_params(obj)
+        return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
+                    canvas=[s.canvas_width, s.canvas_height], fps=s.fps, vertices=len(obj.data.vertices),
+                    modifiers=[m.name for m in obj.modifiers], linked=s.linked,
+                    max_error=float(errors(p.reshape(T, N, 8), params).max()), source=s.source,
+                    source_start=s.source_start, psnr=s.psnr)
+
+    clip = bpy.data.objects["orig"]
+
+    @record("round_trip")
+    def _():
+        out = {}
+        for suffix in (".hgs", ".usd", ".usda", ".npz"):
+            path = work / f"rt{suffix}"
+            activate(clip)
+            exported = bpy.ops.hypergs.export_clip(filepath=str(path), bits=8)
+            imported = bpy.ops.hypergs.import_clip(filepath=str(path))
+            obj = bpy.context.view_layer.objects.active
+            s = obj.hypergs
+            p, _ = mesh_params(obj)
+            row = {"export": sorted(exported), "import": sorted(imported), "vertices": len(obj.data.vertices),
+                   "num_frames": s.num_frames, "canvas": [s.canvas_width, s.canvas_height], "fps": s.fps,
+                   "psnr": s.psnr, "errors": errors(p.reshape(T, N, 8), params).tolist(),
+                   "bounds": (bounds + 1e-5).tolist()}
+            if suffix == ".hgs":
+                row["max_error_vs_file"] = float(errors(p.reshape(T, N, 8), load_hgs(path).params).max())
+            out[suffix] = row
+            bpy.data.meshes.remove(obj.data)
+        return out
+
+    @record("edits")
+    def _():
+        import bmesh
+        activate(clip)
+        pts = read_mesh(clip.data)
+        moved = int(np.flatnonzero(pts["frame"] == 3)[17])
+        target = pts["position"][moved] + np.array([0.3, -0.2, 0.0], np.float32)
+        deleted = int(np.flatnonzero(pts["frame"] == 5)[40])  # after `moved`: its index stays
+        bpy.ops.object.mode_set(mode="EDIT")
+        bm = bmesh.from_edit_mesh(clip.data)
+        bm.verts.ensure_lookup_table()
+        bm.verts[moved].co = target.tolist()
+        bm.verts.remove(bm.verts[deleted])
+        bmesh.update_edit_mesh(clip.data)
+        exported = {}
+        for suffix in (".hgs", ".usd"):  # straight from Edit Mode
+            exported[suffix] = sorted(bpy.ops.hypergs.export_clip(filepath=str(work / f"edited{suffix}")))
+        bpy.ops.object.mode_set(mode="OBJECT")
+        edited = read_mesh(clip.data)
+        out = {}
+        for suffix in (".hgs", ".usd"):
+            imported = bpy.ops.hypergs.import_clip(filepath=str(work / f"edited{suffix}"))
+            obj = bpy.context.view_layer.objects.active
+            again = read_mesh(obj.data)
+            bpy.data.meshes.remove(obj.data)
+            same = len(again["frame"]) == len(edited["frame"])
+            # quantization error bound in plane units (x: canvas x * aspect), doubled: the edit moved the ranges
+            tol = 1e-4 if suffix == ".usd" else 2 * max(bounds[0] * CANVAS[0] / CANVAS[1], bounds[1]) + 1e-4
+            out[suffix] = {
+                "export": exported[suffix], "import": sorted(imported), "vertices": len(again["frame"]),
+                "frame_counts": np.bincount(again["frame"], minlength=T).tolist(),
+                "moved_error": float(np.abs(again["position"][moved] - target).max()), "moved_bound": tol,
+                "moved_distance": float(np.abs(target - pts["position"][moved]).max()),
+                "max_error": float(np.abs(again["position"] - edited["position"]).max()) if same else 1e9,
+                "bound": tol}
+        activate(clip)
+        return out
+
+    # The clip as edited, in a .hgs file: linked and embedded copies of it render the same.
+    activate(clip)
+    bpy.ops.hypergs.export_clip(filepath=str(work / "linked.hgs"))
+    hgs = work / "linked.hgs"
+    pristine = hgs.read_bytes()
+
+    @record("linked")
+    def _():
+        bpy.ops.hypergs.import_clip(filepath=str(hgs))
+        embedded = bpy.context.view_layer.objects.active
+        embedded.name = "embedded"
+        result = bpy.ops.hypergs.import_clip(filepath=str(hgs), link=True)
+        obj = bpy.context.view_layer.objects.active
+        obj.name = "linked"
+        s = obj.hypergs
+        frames, images = {}, {}
+        for frame in (1, 4, 6):  # clip frames 0, 3 (the moved point), 5 (the deleted one)
+            a, _ = render(frame, f"linked_{frame}", [obj])
+            b, _ = render(frame, f"embedded_{frame}", [embedded])
+            images[frame] = a
+            frames[str(frame)] = dict(max_diff_linked_vs_embedded=float(np.abs(a - b).max()),
+                                      brightness=float(a.mean()))
+        outside, _ = render(T + 5, "linked_outside", [obj])
+        poll = {}
+        for name in ("edit_frame", "reencode"):
+            activate(obj)
+            poll[name] = getattr(bpy.ops.hypergs, name).poll()
+        return dict(result=sorted(result), linked=s.linked, path_shown=s.linked_path == str(hgs),
+                    mesh_vertices=len(obj.data.vertices), modifiers=[m.name for m in obj.modifiers],
+                    num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame, frames=frames,
+                    frames_differ=bool(np.abs(images[1] - images[4]).max() > 0.05),
+                    outside_clip_black=bool(outside.max() == 0),
+                    problem_when_fine=linked.problem(str(hgs)),
+                    edit_frame_poll=poll["edit_frame"], reencode_poll=poll["reencode"])
+
+    lobj, eobj = bpy.data.objects["linked"], bpy.data.objects["embedded"]
+    panel = _import(addon, "ui").HYPERGS_PT_clip
+
+    def panel_draw(obj):
+        """What the clip panel draws for `obj`: [(call, text or property, icon)] (a recording layout)."""
+        activate(obj)
+        layout = Recorder()
+        panel.draw(types_namespace(layout=layout, draw_linked=panel.draw_linked), bpy.context)
+        return layout.calls
+    reference, _ = render(4, "linked_reference", [lobj])
+
+    @record("broken")
+    def _():
+        out = {}
+        data = bytearray(pristine)
+        data[len(data) // 2:len(data) // 2 + 64] = bytes(64)  # inside a chunk: a checksum mismatch
+        breakers = {"deleted": (lambda: hgs.unlink(), "no such file"),
+                    "corrupted": (lambda: hgs.write_bytes(bytes(data)), "checksum mismatch"),
+                    "truncated": (lambda: hgs.write_bytes(pristine[:len(pristine) * 2 // 3]), "damaged")}
+        for case, (breaker, expect) in breakers.items():
+            breaker()
+            before = snapshot(bpy)
+            image, result = render(4, f"broken_{case}", [lobj])
+            after = snapshot(bpy)
+            problem = linked.problem(str(hgs)) or ""
+            shown = [c for c in panel_draw(lobj) if c[0] == "label" and c[2] == "ERROR"]
+            hgs.write_bytes(pristine)
+            again, _ = render(4, f"restored_{case}", [lobj])
+            out[case] = dict(render=result, black=bool(image.max() == 0), problem=problem, expect=expect,
+                             panel_error=shown[0][1] if shown else None,
+                             unchanged=before == after, diff=diff(before, after),
+                             restored_matches=bool(np.abs(again - reference).max() == 0))
+        out["panel_fine"] = panel_draw(lobj)
+        out["panel_embedded"] = panel_draw(eobj)
+        return out
+
+    @record("storage")
+    def _():
+        activate(lobj)
+        hgs.rename(work / "moved.hgs")
+        embed_missing = attempt("no such file", lambda: bpy.ops.hypergs.embed_clip())
+        (work / "moved.hgs").rename(hgs)
+        activate(lobj)
+        bpy.ops.hypergs.embed_clip()
+        embedded = dict(linked=lobj.hypergs.linked, vertices=len(lobj.data.vertices),
+                        modifiers=[m.name for m in lobj.modifiers])
+        image, _ = render(4, "embedded_now", [lobj])
+        activate(lobj)
+        bpy.ops.hypergs.export_clip(filepath=str(work / "relinked.hgs"), link=True)
+        relinked = dict(linked=lobj.hypergs.linked, vertices=len(lobj.data.vertices),
+                        modifiers=[m.name for m in lobj.modifiers])
+        image2, _ = render(4, "relinked_now", [lobj])
+        return dict(embed_missing=embed_missing, embedded=embedded,
+                    embedded_render_diff=float(np.abs(image - reference).max()),
+                    relinked=relinked, relinked_render_diff=float(np.abs(image2 - reference).max()))
+
+    @record("errors")
+    def _():
+        damaged = work / "damaged.hgs"
+        damaged.write_bytes(pristine[:100])
+        activate(eobj)
+        return {
+            "link_usd": attempt("only .hgs files can be linked",
+                                lambda: bpy.ops.hypergs.import_clip(filepath=str(work / "rt.usd"), link=True)),
+            "missing": attempt("no such file",
+                               lambda: bpy.ops.hypergs.import_clip(filepath=str(work / "nothing.hgs"))),
+            "damaged": attempt("damaged.hgs",
+                               lambda: bpy.ops.hypergs.import_clip(filepath=str(damaged), link=True)),
+            "export_no_folder": attempt("no_folder",
+                                        lambda: bpy.ops.hypergs.export_clip(
+                                            filepath=str(work / "no_folder" / "x.hgs"))),
+            "link_export_usd": attempt("needs a .hgs file",
+                                       lambda: bpy.ops.hypergs.export_clip(filepath=str(work / "x.usd"), link=True)),
+        }
+
+    for o in list(bpy.data.objects):
+        if o.type == "MESH":
+            bpy.data.meshes.remove(o.data)
+    encoder = _import(addon, "ops.encoder").make_encoder()
+    folder = work / "seq"
+    folder.mkdir()
+    yy, xx = np.mgrid[0:48, 0:64] / np.float32(48)
+    for i in range(SEQUENCE):  # a bright disc moving right over a gradient
+        rgb = np.stack([xx / 1.4, yy, np.full_like(xx, 0.3)], -1)
+        rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
+        write_image(folder / f"frame_{i + 1:04d}.png", rgb)
+    (folder / "notes.txt").write_text("not a frame")
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250, 1)
+
+    def compare(obj, first):
+        p, _ = mesh_params(obj)
+        ref = reference_video.params[first:first + obj.hypergs.num_frames]
+        return float(np.abs(p.reshape(ref.shape) - ref).max()) if p.size == ref.size else 1e9
+
+    @record("import_sequence")
+    def _():
+        out = {}
+        for case, path in (("file", folder / "frame_0003.png"), ("pattern", folder / "frame_####.png")):
+            result = bpy.ops.hypergs.import_video(filepath=str(path), gaussian_count=250)
+            obj = bpy.context.view_layer.objects.active
+            out[case] = dict(result=sorted(result), name=obj.name.split(".")[0], num_frames=obj.hypergs.num_frames,
+                             fps=obj.hypergs.fps, max_error_vs_core=compare(obj, 0))
+            bpy.data.meshes.remove(obj.data)
+        return out
+
+    @record("image_strip")
+    def _():
+        editor = scene.sequence_editor_create()
+        strips = editor.strips if hasattr(editor, "strips") else editor.sequences
+        strip = strips.new_image(name="seq", filepath=str(folder / "frame_0001.png"), channel=2, frame_start=10)
+        for i in range(2, SEQUENCE + 1):
+            strip.elements.append(f"frame_{i:04d}.png")
+        strip.frame_offset_start = 1  # trimmed: the strip starts at scene frame 11 with the second image
+        editor.active_strip = strip
+        result = bpy.ops.hypergs.convert_strip(gaussian_count=250)
+        obj = bpy.data.objects["seq"]
+        s = obj.hypergs
+        still = strips.new_image(name="still", filepath=str(folder / "frame_0001.png"), channel=3, frame_start=1)
+        editor.active_strip = still
+        still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip(gaussian_count=250))
+        return dict(result=sorted(result), muted=strip.mute, num_frames=s.num_frames, frame_start=s.frame_start,
+                    source=s.source, source_start=s.source_start, max_error_vs_core=compare(obj, 1),
+                    still_image=still_image)
+
+    shutil.rmtree(work / "user", ignore_errors=True)
+    return results
+
+
+class Recorder:
+    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
+
+    def __init__(self, calls=None):
+        self.__dict__["calls"] = [] if calls is None else calls
+
+    def __setattr__(self, name, value):  # alert, use_property_split, ...
+        pass
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            if name in ("label", "operator"):
+                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
+            elif name == "prop":
+                self.calls.append((name, args[1], None))
+            return Recorder(self.calls)
+        return call
+
+
+def types_namespace(**kwargs):
+    from types import SimpleNamespace
+    return SimpleNamespace(**kwargs)
+
+
+if __name__ == "__main__":
+    zip_arg, work_arg, out_arg = sys.argv[1:4]
+    run_session(zip_arg, work_arg, out_arg)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)  # skip bpy's slow teardown

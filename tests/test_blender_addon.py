@@ -18,8 +18,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TENNIS = ROOT.parent / "shared" / "videos" / "davis_tennis.mp4"
-# The encoder the session converts with; "floor" until the bundled network's weights land, then "bundled".
-ENCODER = "floor"
+# The encoder the session converts with: the bundled network (HYPERGS_ENCODER=floor for the no-learning floor).
+ENCODER = "bundled"
 GAUSSIANS = 1000
 RENDER_FRAMES = (1, 35, 70)  # scene frames; the strip starts at frame 1, so source index = frame - 1
 SIZES = ((256, 256), (864, 480))

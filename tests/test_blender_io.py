@@ -9,7 +9,6 @@ import os
 import shutil
 import subprocess
 import sys
-import traceback
 from pathlib import Path
 
 import numpy as np
@@ -162,16 +161,7 @@ def run_session(zip_path, work, out_path):
 
     work = Path(work)
     results = {}
-
-    def record(name):
-        def wrap(fn):
-            try:
-                results[name] = fn()
-            except BaseException:
-                results[name] = {"error": traceback.format_exc()}
-            Path(out_path).write_text(json.dumps(results, indent=1, default=str))
-            return fn
-        return wrap
+    record = job.step_recorder(results, out_path)
 
     bpy = job.start_blender(work / "user")
     addon = job.install_extension(bpy, zip_path)

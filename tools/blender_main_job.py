@@ -50,6 +50,25 @@ def build_zip(output_dir) -> Path:
     return mine[0]
 
 
+def step_recorder(results: dict, out_path):
+    """Decorator factory for test sessions: `@record(name)` runs the step at once and stores its
+    result (or its traceback) under `name`, rewriting `out_path` as JSON after every step, so a
+    session that dies still reports the steps it finished."""
+    import json
+    import traceback
+
+    def record(name):
+        def wrap(fn):
+            try:
+                results[name] = fn()
+            except BaseException:
+                results[name] = {"error": traceback.format_exc()}
+            Path(out_path).write_text(json.dumps(results, indent=1, default=str))
+            return fn
+        return wrap
+    return record
+
+
 def start_blender(user_dir, block=("torch", "numba")):
     """Import bpy with HOME, caches and Blender's user resources in `user_dir` (must run before any
     other bpy import in the process). Modules in `block` are made unimportable first, as in a plain

@@ -1,6 +1,14 @@
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import av
 import numpy as np
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def write_video(path, frames, fps=12):
@@ -22,3 +30,28 @@ def moving_video(tmp_path):
     for t in range(12):
         frames[t, 12:28, 4 + 3 * t:20 + 3 * t] = (250, 240, 60)
     return write_video(tmp_path / "moving.mp4", frames)
+
+
+def run_blender_session(script, work: Path, encoder: str, timeout: float) -> tuple[dict, str]:
+    """Build the extension zip, then run `script ZIP WORK OUT.json` in a fresh Python (bpy can be
+    imported once per process) with $HYPERGS_ENCODER defaulting to `encoder`. Returns the steps'
+    results and the session's console output (Blender prints render reports there)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import blender_main_job
+    zip_path = blender_main_job.build_zip(work / "dist")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder))
+    out = work / "session.json"
+    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
+    proc = subprocess.run([python, str(script), str(zip_path), str(work), str(out)], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    if not out.is_file():
+        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return json.loads(out.read_text()), proc.stdout + proc.stderr
+
+
+def step(session, name):
+    """One recorded step of a Blender session; fails with its traceback if it raised."""
+    result = session.get(name)
+    assert result is not None, f"step {name} did not run"
+    assert "error" not in result, result["error"]
+    return result

@@ -6,14 +6,13 @@ a script, with torch and numba made unimportable, as in Blender's own Python) an
 measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
 $HYPERGS_BLENDER_PYTHON runs the session with another Python that has bpy (e.g. bpy 4.2 LTS).
 """
-import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_blender_session, step
 
 ROOT = Path(__file__).resolve().parents[1]
 TENNIS = ROOT.parent / "shared" / "videos" / "davis_tennis.mp4"
@@ -34,24 +33,7 @@ def session(tmp_path_factory):
     if not TENNIS.is_file():
         pytest.skip(f"{TENNIS} is missing")
     work = tmp_path_factory.mktemp("blender")
-    sys.path.insert(0, str(ROOT / "tools"))
-    import blender_main_job
-    zip_path = blender_main_job.build_zip(work / "dist")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", ENCODER))
-    out = work / "session.json"
-    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
-    proc = subprocess.run([python, __file__, str(zip_path), str(work), str(out)], env=env,
-                          capture_output=True, text=True, timeout=SESSION_TIMEOUT)
-    if not out.is_file():
-        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return json.loads(out.read_text())
-
-
-def step(session, name):
-    result = session.get(name)
-    assert result is not None, f"step {name} did not run"
-    assert "error" not in result, result["error"]
-    return result
+    return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)[0]
 
 
 def test_install_and_enable(session):
@@ -225,15 +207,7 @@ def run_session(zip_path, work, out_path):
         cases = {}
 
         def attempt(name, expect, call):
-            before = snapshot(bpy)
-            message, raised = "", False
-            try:
-                call()
-            except RuntimeError as e:
-                message, raised = str(e), True
-            after = snapshot(bpy)
-            cases[name] = dict(raised=raised, message=message, expect=expect, unchanged=before == after,
-                               diff=diff(before, after))
+            cases[name] = attempt_unchanged(bpy, expect, call)
 
         attempt("corrupt_video", "corrupt.mp4: cannot decode",
                 lambda: bpy.ops.hypergs.import_video(filepath=str(corrupt)))
@@ -580,6 +554,19 @@ def set_position_group(bpy, offset):
     group.links.new(gin.outputs[0], setp.inputs["Geometry"])
     group.links.new(setp.outputs[0], gout.inputs[0])
     return group
+
+
+def attempt_unchanged(bpy, expect, call) -> dict:
+    """Run an operator call expected to fail: did it raise, with what message, and is the scene
+    (snapshot) exactly as before?"""
+    before = snapshot(bpy)
+    message, raised = "", False
+    try:
+        call()
+    except RuntimeError as e:
+        message, raised = str(e), True
+    after = snapshot(bpy)
+    return dict(raised=raised, message=message, expect=expect, unchanged=before == after, diff=diff(before, after))
 
 
 def snapshot(bpy):

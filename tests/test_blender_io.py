@@ -4,18 +4,17 @@ clips linked to an external .hgs file (render, missing and damaged files), image
 One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares): this
 file run as a script writes what it measured to JSON; the tests below check it.
 """
-import json
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_blender_session, step
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import ROOT, _import, diff, read_mesh, snapshot  # noqa: E402
+from test_blender_addon import ROOT, _import, attempt_unchanged, diff, read_mesh, snapshot  # noqa: E402
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
@@ -26,26 +25,9 @@ SESSION_TIMEOUT = 300
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     work = tmp_path_factory.mktemp("blender_io")
-    sys.path.insert(0, str(ROOT / "tools"))
-    import blender_main_job
-    zip_path = blender_main_job.build_zip(work / "dist")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", ENCODER))
-    out = work / "session.json"
-    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)
-    proc = subprocess.run([python, __file__, str(zip_path), str(work), str(out)], env=env,
-                          capture_output=True, text=True, timeout=SESSION_TIMEOUT)
-    if not out.is_file():
-        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    results = json.loads(out.read_text())
-    results["console"] = proc.stdout + proc.stderr  # Blender prints render reports there
+    results, console = run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
+    results["console"] = console
     return results
-
-
-def step(session, name):
-    result = session.get(name)
-    assert result is not None, f"step {name} did not run"
-    assert "error" not in result, result["error"]
-    return result
 
 
 def test_import_npz_builds_a_clip_object(session):
@@ -228,15 +210,7 @@ def run_session(zip_path, work, out_path):
         return job.read_png(bpy, png), sorted(result)
 
     def attempt(expect, call):
-        before = snapshot(bpy)
-        message, raised = "", False
-        try:
-            call()
-        except RuntimeError as e:
-            message, raised = str(e), True
-        after = snapshot(bpy)
-        return dict(raised=raised, message=message, expect=expect, unchanged=before == after,
-                    diff=diff(before, after))
+        return attempt_unchanged(bpy, expect, call)
 
     @record("import_npz")
     def _():

@@ -52,7 +52,6 @@ def bench_raster(device: str = "cpu", batch: int = 32, sizes=(250, 1000, 3000), 
     """Rasterizer throughput: `rasterize` forward and forward+backward frames/s at 256 x 256 (batched),
     one 1920 x 1080 frame with 25,000 Gaussians (seconds), the numpy-only path on that frame, and the
     dense reference at a small size for scale. Medians of `repeats` runs after a warm-up."""
-    import numpy as np
     import torch
 
     from .errors import HyperGSError

@@ -133,20 +133,20 @@ def load_frames(path, frames: int | None, size: int | None, start: int = 0):
     return video, info, indices
 
 
-def render(params: np.ndarray, width: int, height: int, device: str = "cpu") -> np.ndarray:
-    """float32 [T, H, W, 3] of params [T, N, 8] on a W x H canvas: the numpy path (numba) on the CPU,
-    which is what a user's decode runs; the torch rasterizer on CUDA."""
+def render(params: np.ndarray, width: int, height: int, device: str = "cpu", canvas=None) -> np.ndarray:
+    """float32 [T, H, W, 3] of params [T, N, 8] on a canvas (default: W x H) rendered at W x H: the
+    numpy path (numba) on the CPU, which is what a user's decode runs; the torch rasterizer on CUDA."""
+    canvas_w, canvas_h = canvas or (width, height)
     if not device.startswith("cuda"):
         from .gaussians import GaussianVideo
         from .render import render_frames
-        return render_frames(GaussianVideo(params, width, height), width, height)
+        return render_frames(GaussianVideo(params, canvas_w, canvas_h), width, height)
     import torch
 
-    from .gaussians import render_inputs
-    from .raster import rasterize
+    from .render import render_torch
     with torch.no_grad():
         p = torch.from_numpy(np.ascontiguousarray(params)).to(device)
-        out = rasterize(*render_inputs(p, width, height, width, height), width, height)
+        out = render_torch(p, canvas_w, canvas_h, width, height)
         _sync(device)
         return out.cpu().numpy()
 
@@ -788,7 +788,7 @@ def _scale_worker(spec: dict) -> dict:
         with HgsReader(spec["clip"]) as reader:
             cw, ch, total = reader.canvas_width, reader.canvas_height, reader.num_frames
             count = min(total, spec.get("frames") or total)
-            _render_stretched(reader.read_frame(0), cw, ch, width, height, device)  # warm-up
+            render(reader.read_frame(0)[None], width, height, device, (cw, ch))  # warm-up
             _reset_peak_rss()
             baseline = _rss_mb() or _peak_rss_mb()
             stretch = {"read": 0.0, "render": 0.0}
@@ -797,7 +797,7 @@ def _scale_worker(spec: dict) -> dict:
                 t0 = time.perf_counter()
                 params = reader.read_frame(i)
                 t1 = time.perf_counter()
-                _render_stretched(params, cw, ch, width, height, device)
+                render(params[None], width, height, device, (cw, ch))
                 stretch["read"] += t1 - t0
                 stretch["render"] += time.perf_counter() - t1
             seconds = time.perf_counter() - started
@@ -806,7 +806,7 @@ def _scale_worker(spec: dict) -> dict:
                 picks = np.unique(np.linspace(0, total - 1, spec["psnr_frames"]).round().astype(int)).tolist()
                 values = []
                 for index, frame in iter_frames(spec["video"], picks):
-                    pred = _render_stretched(reader.read_frame(index), cw, ch, cw, ch, device)
+                    pred = render(reader.read_frame(index)[None], cw, ch, device)[0]
                     values.append(float(psnr_of(pred[None], frame[None])[0]))
                 quality = {"frames": picks, "psnr_at_source_size": float(np.mean(values))}
         return {"frames": count, "of": total, "width": width, "height": height, "wall_seconds": seconds,
@@ -826,24 +826,6 @@ def memory_growth(result: dict) -> dict:
     return {"peak_rss_at_half_mb": half,
             "growth_first_half_mb": round(half - result["rss_baseline_mb"], 1),
             "growth_second_half_mb": round(result["peak_rss_mb"] - half, 1)}
-
-
-def _render_stretched(params: np.ndarray, canvas_w: int, canvas_h: int, width: int, height: int,
-                      device: str) -> np.ndarray:
-    """One frame [N, 8] on a canvas_w x canvas_h canvas rendered at width x height."""
-    if not device.startswith("cuda"):
-        from .gaussians import GaussianVideo
-        from .render import render_frames
-        return render_frames(GaussianVideo(params[None], canvas_w, canvas_h), width, height)[0]
-    import torch
-
-    from .gaussians import render_inputs
-    from .raster import rasterize
-    with torch.no_grad():
-        p = torch.from_numpy(np.ascontiguousarray(params)).to(device)
-        out = rasterize(*render_inputs(p, canvas_w, canvas_h, width, height), width, height)
-        _sync(device)
-        return out.cpu().numpy()
 
 
 def run_scale_job(spec: dict, timeout: float | None = None) -> dict:

@@ -16,13 +16,11 @@ import time
 import numpy as np
 import torch
 
-from .gaussians import render_inputs
-from .raster import rasterize
+from .render import render_torch
 
 
 def _render(params: torch.Tensor, width: int, height: int) -> torch.Tensor:
-    means, chol, colors = render_inputs(params, width, height, width, height)
-    return rasterize(means, chol, colors, width, height)
+    return render_torch(params, width, height, width, height)
 
 
 def _pack(params: torch.Tensor) -> torch.Tensor:

@@ -22,10 +22,9 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
-from .gaussians import render_inputs
 from .lamb import Lamb, parameter_groups
 from .model import PRESETS, HyperGS, ModelConfig, anchor_inputs
-from .raster import rasterize
+from .render import render_torch
 from .regularizers import AdaptiveRegularizer
 
 DEV_VIDEOS = Path(__file__).resolve().parents[1].parent / "shared" / "videos"
@@ -61,9 +60,8 @@ def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float)
 
 
 def render_params(params: torch.Tensor, size: int) -> torch.Tensor:
-    """Differentiable render of [..., N, 8] canvas params at size x size -> [..., size, size, 3]."""
-    means, chol, colors = render_inputs(params, size, size, size, size)
-    return rasterize(means, chol, colors, size, size)
+    """Differentiable render of [..., N, 8] params on the size x size canvas, at that size."""
+    return render_torch(params, size, size, size, size)
 
 
 def gaussians_for_step(spec: str, seed: int, step: int) -> int:

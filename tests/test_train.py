@@ -22,7 +22,6 @@ def test_cosine_schedule():
 @pytest.mark.parametrize("parametrization", ["local", "paper"])
 def test_tiny_model_overfits_one_clip(parametrization):
     torch.manual_seed(0)
-    rng = np.random.default_rng(0)
     # a clip with structure: two coloured blocks moving over a gradient
     clip = np.zeros((1, 2, 32, 32, 3), np.float32)
     clip[..., 0] = np.linspace(0, 1, 32)[None, None, None, :]

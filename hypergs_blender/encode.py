@@ -1,6 +1,6 @@
 """Video -> GaussianVideo: tiles frames onto the network's canvas, runs a predictor in T-frame
-clips, merges tiles back onto the frame. Backends: the bundled network through torch or
-onnxruntime (`Encoder`), and the grid floor that every model must beat (`FloorEncoder`).
+clips, merges tiles back onto the frame. Predictors: the bundled network through torch or
+onnxruntime (network.py), and the grid floor that every model must beat (`FloorEncoder`).
 
 Gaussian counts are per frame: with a G x G patch grid each tile gets N / G^2 of them.
 """
@@ -14,7 +14,8 @@ import numpy as np
 
 from .errors import HyperGSError
 from .gaussians import GaussianVideo, grid_anchors, merge_tiles, tile_bounds
-from .video import iter_frames, probe, sample_indices
+from .io.frames import iter_frames, probe, sample_indices
+from .io.images import resize_exact
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
 
@@ -26,6 +27,8 @@ class Cancelled(HyperGSError):
 class FloorEncoder:
     """The floor: N Gaussians on a regular grid, colours sampled from the area-averaged frame and
     scaled so the overlapping kernels sum to the image. No learning."""
+
+    name = "floor"
 
     def __init__(self, canvas: int = 128, clip_frames: int = 4, sigma_per_spacing: float = 0.6):
         self.canvas, self.clip_frames, self.sigma_per_spacing = canvas, clip_frames, sigma_per_spacing
@@ -59,7 +62,6 @@ def _box_blur(frames: np.ndarray, k: int) -> np.ndarray:
 
 def canvas_tiles(frame: np.ndarray, grid: int, canvas: int) -> np.ndarray:
     """uint8 frame [H, W, 3] -> [G, G, canvas, canvas, 3] float32 tiles, each resized (area filter)."""
-    from .video import resize_exact
     h, w = frame.shape[:2]
     xb, yb = tile_bounds(w, grid), tile_bounds(h, grid)
     tiles = np.empty((grid, grid, canvas, canvas, 3), np.float32)
@@ -67,6 +69,12 @@ def canvas_tiles(frame: np.ndarray, grid: int, canvas: int) -> np.ndarray:
         for c in range(grid):
             tiles[r, c] = resize_exact(frame[yb[r]:yb[r + 1], xb[c]:xb[c + 1]], canvas, canvas) / 255.0
     return tiles
+
+
+def split_count(gaussian_count: int, grid: int) -> int:
+    """The Gaussian count a G x G grid encodes for a requested count: the nearest multiple of G^2
+    (halves round up; each tile gets an equal share, at least one)."""
+    return max(1, int(gaussian_count / (grid * grid) + 0.5)) * grid * grid
 
 
 def encode_frames(frames: np.ndarray, encoder, gaussian_count: int, grid: int = 1) -> np.ndarray:
@@ -105,9 +113,9 @@ class EncodePlan:
                            encoder=getattr(encoder, "name", type(encoder).__name__))
 
     def chunks(self, progress: Progress | None = None, chunk_clips: int = 4, refine: int = 0):
-        """Yield params [t, N, 8] chunk by chunk: frames are decoded and encoded `chunk_clips` clips at
-        a time, so memory does not grow with the video. `progress` may return False to cancel
-        (raises Cancelled)."""
+        """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
+        encoded `chunk_clips` clips at a time, so memory does not grow with the video. `progress` may
+        return False to cancel (raises Cancelled)."""
         chunk = chunk_clips * self.encoder.clip_frames
         done, buffer = 0, []
 
@@ -118,9 +126,9 @@ class EncodePlan:
         def encode(frames):
             params = encode_frames(frames, self.encoder, self.gaussian_count, self.grid)
             if refine:
-                from .fit import refine_params
+                from .refine import refine_params
                 params = refine_params(params, frames, refine)
-            return params
+            return frames, params
 
         report()
         for _, frame in iter_frames(self.path, self.indices, self.size):
@@ -144,104 +152,6 @@ def encode_video(path, encoder, gaussian_count: int = 1000, grid: int = 1, size:
     short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
     started = time.perf_counter()
     plan = EncodePlan(path, encoder, gaussian_count, grid, size, start, stop, num_frames)
-    params = np.concatenate(list(plan.chunks(progress, chunk_clips, refine)))
+    params = np.concatenate([p for _, p in plan.chunks(progress, chunk_clips, refine)])
     return GaussianVideo(params, plan.width, plan.height, plan.fps, (grid, grid),
                          dict(plan.source, encode_seconds=time.perf_counter() - started))
-
-
-def default_encoder(backend: str = "auto"):
-    """The bundled network: torch when importable (backend 'torch'), else onnxruntime ('onnx')."""
-    from .network import load_bundled_encoder
-    return load_bundled_encoder(backend)
-
-
-def add_encoder_arguments(parser) -> None:
-    parser.add_argument("--encoder", default="network", choices=["network", "floor"],
-                        help="the bundled network, or the grid floor (no learning)")
-    parser.add_argument("--backend", default="auto", choices=["auto", "torch", "onnx"])
-    parser.add_argument("--weights", default=None, help="folder with <name>.json/.safetensors/.onnx")
-    parser.add_argument("--refine", type=int, default=0, help="per-frame refinement steps after the prediction")
-
-
-def make_encoder(args):
-    if args.encoder == "floor":
-        return FloorEncoder()
-    from .network import WEIGHTS_DIR, load_bundled_encoder
-    return load_bundled_encoder(args.backend, args.weights or WEIGHTS_DIR)
-
-
-def add_commands(subparsers) -> None:
-    p = subparsers.add_parser("encode", help="video -> Gaussian video file (.npz, .hgs)")
-    p.add_argument("video")
-    p.add_argument("-o", "--output", required=True)
-    p.add_argument("--gaussians", type=int, default=1000)
-    p.add_argument("--grid", type=int, default=1)
-    p.add_argument("--size", type=int, default=None, help="square canvas (short-side resize + crop); default native")
-    p.add_argument("--start", type=int, default=0)
-    p.add_argument("--stop", type=int, default=None)
-    p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
-    p.add_argument("--position-bits", type=int, default=10, choices=range(4, 17), metavar="{4..16}",
-                   help="bits of the means (.hgs; default 10: at 4-6 bits the means snap to a coarse lattice)")
-    add_encoder_arguments(p)
-    p.set_defaults(func=_encode_command)
-
-    p = subparsers.add_parser("render", help="Gaussian video file -> image frames")
-    p.add_argument("clip")
-    p.add_argument("-o", "--output", required=True, help="folder for frame_0000.png ...")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
-    p.add_argument("--format", default="png", choices=["png", "exr"])
-    p.set_defaults(func=_render_command)
-
-
-def _encode_command(args) -> None:
-    from pathlib import Path
-
-    from tqdm import tqdm
-    encoder = make_encoder(args)
-    bar = tqdm(unit="frame", dynamic_ncols=True)
-
-    def progress(done, total):
-        bar.total, bar.n = total, done
-        bar.refresh()
-        return True
-
-    started = time.perf_counter()
-    plan = EncodePlan(args.video, encoder, args.gaussians, args.grid, args.size, args.start, args.stop)
-    chunks = plan.chunks(progress, refine=args.refine)
-    if Path(args.output).suffix.lower() == ".hgs":
-        # Streamed: memory stays bounded by the chunk, and the writer only renames its .part file
-        # into place when every frame is in, so an interrupted encode leaves no file behind.
-        from .codec import Quantizer
-        from .hgs import HgsWriter
-        bits = (args.position_bits,) * 2 + (args.bits,) * 6
-        quantizer = Quantizer.default(plan.width, plan.height, bits)
-        with HgsWriter(args.output, plan.width, plan.height, args.gaussians, quantizer, plan.fps,
-                       (args.grid, args.grid), plan.source) as writer:
-            for params in chunks:
-                writer.write(params)
-    else:
-        from .clip_io import save_clip
-        video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps,
-                              (args.grid, args.grid), plan.source)
-        save_clip(video, args.output)
-    bar.close()
-    print(f"{args.output}: {len(plan.indices)} frames x {args.gaussians} Gaussians "
-          f"({time.perf_counter() - started:.2f} s)")
-
-
-def _render_command(args) -> None:
-    from pathlib import Path
-
-    from .clip_io import load_clip
-    from .image_sequence import write_image
-    from .render import render_frames
-    video = load_clip(args.clip)
-    width = args.width or video.canvas_width
-    height = args.height or round(width * video.canvas_height / video.canvas_width)
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    for t in range(video.num_frames):
-        frame = render_frames(video, width, height, [t])[0]
-        write_image(out / f"frame_{t:04d}.{args.format}", frame)
-    print(f"{video.num_frames} frames at {width}x{height} -> {out}")

@@ -13,16 +13,13 @@ becomes T Sigma T. Its Cholesky factor goes to the rasterizer.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 PARAMS = ("x", "y", "scale_x", "scale_y", "rotation", "r", "g", "b")
 NUM_PARAMS = len(PARAMS)
-FORMAT_VERSION = 1
 
 
 @dataclass
@@ -51,27 +48,6 @@ class GaussianVideo:
     def frames(self, start: int, stop: int) -> "GaussianVideo":
         return GaussianVideo(self.params[start:stop], self.canvas_width, self.canvas_height, self.fps,
                              self.grid, dict(self.source))
-
-    def save(self, path) -> None:
-        """Uncompressed .npz (no pickle). The .hgs codec is the compact format."""
-        meta = dict(version=FORMAT_VERSION, canvas=[self.canvas_width, self.canvas_height], fps=self.fps,
-                    grid=list(self.grid), source=self.source)
-        with open(path, "wb") as f:
-            np.savez(f, params=self.params, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
-
-    @classmethod
-    def load(cls, path) -> "GaussianVideo":
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                params = z["params"]
-                meta = json.loads(z["meta"].tobytes().decode())
-        except (OSError, ValueError, KeyError) as e:
-            raise ValueError(f"{path}: not a Gaussian video file ({e})") from e
-        if meta.get("version") != FORMAT_VERSION:
-            raise ValueError(f"{path}: unsupported Gaussian video version {meta.get('version')}")
-        w, h = meta["canvas"]
-        return cls(params, w, h, meta["fps"], tuple(meta["grid"]), meta.get("source", {}))
 
 
 def covariance(scale: np.ndarray, rotation: np.ndarray, stretch=(1.0, 1.0)) -> np.ndarray:

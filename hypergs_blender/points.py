@@ -27,24 +27,8 @@ import math
 
 import numpy as np
 
+from .colour import linear_to_srgb, srgb_to_linear
 from .gaussians import NUM_PARAMS, GaussianVideo
-from .render import render_frames
-
-
-def srgb_to_linear(v: np.ndarray) -> np.ndarray:
-    """The sRGB decoding function, extended to all reals: odd, and the same formula above 1."""
-    v = np.asarray(v, np.float32)
-    a = np.abs(v)
-    out = np.where(a <= 0.04045, a / 12.92, ((a + 0.055) / 1.055) ** 2.4)
-    return (np.sign(v) * out).astype(np.float32)
-
-
-def linear_to_srgb(v: np.ndarray) -> np.ndarray:
-    """Inverse of `srgb_to_linear`."""
-    v = np.asarray(v, np.float32)
-    a = np.abs(v)
-    out = np.where(a <= 0.0031308, a * 12.92, 1.055 * a ** (1 / 2.4) - 0.055)
-    return (np.sign(v) * out).astype(np.float32)
 
 
 def params_to_points(params: np.ndarray, canvas_width: int, canvas_height: int) -> dict:
@@ -152,22 +136,3 @@ def video_to_points(video: GaussianVideo) -> dict:
         return points
     keep = (np.arange(n)[None, :] < counts[:, None]).reshape(-1)
     return {k: np.ascontiguousarray(v[keep]) for k, v in points.items()}
-
-
-def render_params_srgb(params: np.ndarray, canvas_width: int, canvas_height: int,
-                       width: int, height: int) -> np.ndarray:
-    """One frame's Gaussians [M, 8] rendered at width x height: float32 [H, W, 3], sRGB-encoded
-    additive sums (rows top to bottom). The canvas stretches to the output (exact covariance)."""
-    if len(params) == 0:
-        return np.zeros((height, width, 3), np.float32)
-    video = GaussianVideo(np.asarray(params, np.float32)[None], canvas_width, canvas_height)
-    return render_frames(video, width, height)[0]
-
-
-def srgb_image_to_linear_rgba(image: np.ndarray) -> np.ndarray:
-    """An sRGB-encoded [H, W, 3] sum -> scene-linear RGBA float32 [H, W, 4], rows bottom to top
-    (a Blender render pass). Negative sums clip to 0; values above 1 are kept."""
-    h, w = image.shape[:2]
-    out = np.ones((h, w, 4), np.float32)
-    out[..., :3] = srgb_to_linear(np.maximum(image, 0))[::-1]
-    return out

@@ -35,8 +35,12 @@ their box).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 SIGMA_CUTOFF = 3.0
 MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or 3-sigma radius >= 1e7 px as invalid

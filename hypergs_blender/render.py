@@ -1,5 +1,5 @@
-"""Render Gaussians at any size: `render_frames` with the numpy-only rasterizer path (no torch, as
-in Blender), `render_torch` differentiably through torch (any device)."""
+"""Render Gaussians at any size: `render_params` / `render_frames` with the numpy-only rasterizer path
+(no torch, as in Blender), `render_torch` differentiably through torch (any device)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,13 +7,22 @@ import numpy as np
 from .gaussians import GaussianVideo, render_inputs
 
 
-def render_frames(video: GaussianVideo, width: int, height: int, frames=None) -> np.ndarray:
-    """float32 [T, height, width, 3] (unclipped additive sums) for the chosen frame indices."""
+def render_params(params: np.ndarray, canvas_width: int, canvas_height: int, width: int, height: int) -> np.ndarray:
+    """float32 [..., height, width, 3] (unclipped additive sums, sRGB-encoded like the colours) of
+    numpy params [..., N, 8] on a canvas_width x canvas_height canvas, stretched to width x height."""
     from .raster import rasterize_numpy
 
-    params = video.params if frames is None else video.params[frames]
-    means, chol, colors = render_inputs(params, video.canvas_width, video.canvas_height, width, height)
+    params = np.asarray(params, np.float32)
+    if params.shape[-2] == 0:
+        return np.zeros(params.shape[:-2] + (height, width, 3), np.float32)
+    means, chol, colors = render_inputs(params, canvas_width, canvas_height, width, height)
     return rasterize_numpy(means, chol, colors, width, height)
+
+
+def render_frames(video: GaussianVideo, width: int, height: int, frames=None) -> np.ndarray:
+    """float32 [T, height, width, 3] of the chosen frame indices of a clip (all when None)."""
+    params = video.params if frames is None else video.params[frames]
+    return render_params(params, video.canvas_width, video.canvas_height, width, height)
 
 
 def render_torch(params, canvas_width: int, canvas_height: int, width: int, height: int):

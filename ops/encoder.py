@@ -1,16 +1,14 @@
-"""The one place that chooses the encoder the operators use.
-
-Default: the bundled network (`encode.default_encoder()`: torch with CUDA when importable, else
-onnxruntime; the ONNX model also where torch imports but its backend does not load). Where the
-network cannot load, the operators report that; they never fall back to another encoder silently.
-`HYPERGS_ENCODER=floor` picks the no-learning `FloorEncoder` instead (tests and the main job set it
-until the bundled network's weights land).
+"""The encoder the operators use: `network.resolve_encoder` (the one policy: the bundled network,
+onnxruntime in a Blender without torch; what cannot load is reported, never replaced by another
+encoder), loaded once per Blender session. `HYPERGS_ENCODER=floor` picks the no-learning
+`FloorEncoder` instead (tests use it where the network's quality does not matter).
 """
 from __future__ import annotations
 
 import os
 
 from ..hypergs_blender.errors import HyperGSError
+from ..hypergs_blender.network import resolve_encoder
 
 ENCODER_ENV = "HYPERGS_ENCODER"
 _cache: dict = {}
@@ -18,25 +16,8 @@ _cache: dict = {}
 
 def make_encoder():
     choice = os.environ.get(ENCODER_ENV, "bundled").strip().lower()
-    if choice == "floor":
-        from ..hypergs_blender.encode import FloorEncoder
-        return FloorEncoder()
-    if choice != "bundled":
+    if choice not in ("bundled", "floor"):
         raise HyperGSError(f"{ENCODER_ENV}={choice!r}: use 'bundled' or 'floor'")
-    if "bundled" not in _cache:  # loading the network is slow: once per Blender session
-        from ..hypergs_blender.encode import default_encoder
-        try:
-            _cache["bundled"] = default_encoder()  # torch (CUDA) when importable, else onnxruntime
-        except Exception as first:
-            try:  # a Blender with torch but not the rest of its stack (safetensors): the bundled ONNX model
-                _cache["bundled"] = default_encoder("onnx")
-            except Exception:
-                if isinstance(first, HyperGSError):
-                    raise first
-                raise HyperGSError(f"The bundled HyperGS network could not be loaded "
-                                   f"({type(first).__name__}: {first})") from first
-    return _cache["bundled"]
-
-
-def encoder_name(encoder) -> str:
-    return getattr(encoder, "name", type(encoder).__name__)
+    if choice not in _cache:  # loading the network is slow: once per Blender session
+        _cache[choice] = resolve_encoder("floor" if choice == "floor" else "network")
+    return _cache[choice]

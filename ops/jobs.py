@@ -8,16 +8,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hypergs_blender import encode as _encode
-from ..hypergs_blender.encode import Cancelled
+from ..hypergs_blender.encode import EncodePlan, split_count
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.metrics import psnr
-from ..hypergs_blender.render import render_frames
-from ..hypergs_blender.video import iter_frames
-from .encoder import encoder_name, make_encoder
+from ..hypergs_blender.render import render_params
+from .encoder import make_encoder
 
-PSNR_FRAMES = 8  # frames rendered after encoding to measure the clip's PSNR
+PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
 
 
 @dataclass
@@ -37,38 +35,25 @@ class EncodeResult:
     encoder: str
 
 
-def split_count(gaussian_count: int, grid: int) -> int:
-    """The Gaussian count actually used: the nearest multiple of grid^2 (each tile gets an equal share)."""
-    return max(1, round(gaussian_count / (grid * grid))) * grid * grid
-
-
-def measure_psnr(video: GaussianVideo, path: str, max_frames: int = PSNR_FRAMES, keep_going=lambda: True) -> float:
-    """Mean PSNR (dB) of up to `max_frames` evenly spread frames, rendered at the source size."""
-    indices = list(video.source.get("frames", range(video.num_frames)))
-    picks = sorted(set(np.round(np.linspace(0, len(indices) - 1, min(max_frames, len(indices)))).astype(int)))
-    wanted = {indices[p]: p for p in picks}
-    values = []
-    for index, frame in iter_frames(path, sorted(wanted)):
-        if not keep_going():
-            raise Cancelled("encoding cancelled")
-        image = render_frames(video, video.canvas_width, video.canvas_height, [wanted[index]])
-        values.append(float(psnr(image, frame[None] / np.float32(255))[0]))
-    return float(np.mean(values))
-
-
 def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
-    """Encode and measure. progress(done, total) -> False cancels (raises Cancelled)."""
+    """Encode, measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
+    progress(done, total) -> False cancels (raises Cancelled)."""
     started = time.perf_counter()
     encoder = make_encoder()
-    video = _encode.encode_video(request.path, encoder, split_count(request.gaussian_count, request.grid),
-                                 request.grid, start=request.start, stop=request.stop, progress=progress)
-    total = video.num_frames
-
-    def keep_going():
-        return progress is None or progress(total, total) is not False
-
-    value = measure_psnr(video, request.path, keep_going=keep_going)
-    return EncodeResult(video, value, time.perf_counter() - started, encoder_name(encoder))
+    n = split_count(request.gaussian_count, request.grid)
+    plan = EncodePlan(request.path, encoder, n, request.grid, start=request.start, stop=request.stop)
+    total = len(plan.indices)
+    measured = set(np.round(np.linspace(0, total - 1, min(PSNR_FRAMES, total))).astype(int).tolist())
+    chunks, values, done = [], [], 0
+    for frames, params in plan.chunks(progress):
+        for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
+            image = render_params(params[i], plan.width, plan.height, plan.width, plan.height)
+            values.append(float(psnr(image[None], frames[i][None] / np.float32(255))[0]))
+        chunks.append(params)
+        done += len(frames)
+    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, (request.grid, request.grid),
+                          dict(plan.source, encode_seconds=time.perf_counter() - started))
+    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started, encoder.name)
 
 
 class EncodeJob:

@@ -16,13 +16,13 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..hypergs_blender import image_sequence
+from ..com import linked
+from ..com.mesh import linked_file, read_clip_points
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.image_sequence import IMAGE_EXTENSIONS
+from ..hypergs_blender.io import image_sequence
+from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
-from ..hypergs_blender.video import VIDEO_EXTENSIONS
-from . import linked
 from . import scene as clip_scene
 from .jobs import EncodeJob, EncodeRequest, describe
 from .props import GAUSSIAN_COUNT, PATCH_GRID
@@ -448,7 +448,7 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
     def _import(self, context) -> str:
-        from ..hypergs_blender.clip_io import load_clip
+        from ..hypergs_blender.io.clips import load_clip
         if not self.filepath:
             raise HyperGSError("No Gaussian video file given")
         path = bpy.path.abspath(self.filepath)
@@ -559,7 +559,7 @@ class HYPERGS_OT_export_clip(bpy.types.Operator, ExportHelper):
         return path + FORMATS[self.file_format]
 
     def _export(self, context, obj) -> str:
-        from ..hypergs_blender.clip_io import save_clip
+        from ..hypergs_blender.io.clips import save_clip
         path = self._target()
         suffix = os.path.splitext(path)[1].lower()
         if self.link and suffix != ".hgs":
@@ -587,11 +587,11 @@ def clip_video(obj):
     """(GaussianVideo, points left out) of a clip as it is now: an embedded clip's mesh with the
     user's edits (Edit Mode included; modifiers other than the frame filter are not applied), or a
     linked clip's file."""
-    from ..hypergs_blender.clip_io import load_clip
+    from ..hypergs_blender.io.clips import load_clip
     from ..hypergs_blender.points import frame_counts, points_to_video
     s = obj.hypergs
     if s.linked:
-        return load_clip(clip_scene.linked_file(obj)), 0
+        return load_clip(linked_file(obj)), 0
     if s.canvas_width <= 0 or s.canvas_height <= 0:
         raise HyperGSError(f"'{obj.name}' has no canvas size")
     if obj.mode == "EDIT":
@@ -600,11 +600,11 @@ def clip_video(obj):
         obj.update_from_editmode()
         mesh = obj.data.copy()
         try:
-            points = clip_scene.read_clip_points(mesh)
+            points = read_clip_points(mesh)
         finally:
             bpy.data.meshes.remove(mesh)
     else:
-        points = clip_scene.read_clip_points(obj.data)
+        points = read_clip_points(obj.data)
     count = s.num_frames
     source = dict(path=s.source, frames=list(range(s.source_start, s.source_start + count)), encoder=s.encoder,
                   encode_seconds=s.encode_seconds, psnr=s.psnr)
@@ -628,10 +628,10 @@ class HYPERGS_OT_embed_clip(bpy.types.Operator):
         return obj is not None and obj.hypergs.linked and obj.mode == "OBJECT"
 
     def execute(self, context):
-        from ..hypergs_blender.clip_io import load_clip
+        from ..hypergs_blender.io.clips import load_clip
         obj = _active_clip(context)
         try:
-            video = load_clip(clip_scene.linked_file(obj))
+            video = load_clip(linked_file(obj))
             name = os.path.basename(obj.hypergs.linked_path)
             clip_scene.embed_clip(obj, video)
         except Exception as e:  # load_clip fails before anything changes

@@ -1,15 +1,13 @@
 """Writing clips into the scene (main thread only).
 
-Storage: one mesh object per clip. Its vertices are the Gaussians of every frame (position on the
-image plane, and point attributes `scale`, `rotation`, `color`, `frame`: see hypergs_blender/points.py),
-and a Geometry Nodes modifier built here ("HyperGS Frames") keeps only the points whose `frame` is
+Storage: one mesh object per clip (com/mesh.py writes and reads its data), and a Geometry Nodes modifier built here ("HyperGS Frames") keeps only the points whose `frame` is
 the clip frame for the scene frame, then adds a point cloud of them so they show in Solid mode.
 Why one mesh and not one mesh per frame: it is plain data (no frame-change handler has to run, so it
 renders the same with or without the add-on's handlers, on a farm too), it saves and reloads with
 the .blend, Edit Mode edits and further Geometry Nodes modifiers apply per frame through the `frame`
 attribute, and the render engine reads the depsgraph-evaluated mesh, i.e. exactly what is shown.
 
-A clip linked to an external .hgs file (`hypergs.linked`, see linked.py for why) has a mesh with just
+A clip linked to an external .hgs file (`hypergs.linked`, see com/linked.py for why) has a mesh with just
 the image plane's outline and no frame modifier; the engine reads its Gaussians from the file.
 """
 from __future__ import annotations
@@ -17,12 +15,11 @@ from __future__ import annotations
 import math
 
 import bpy
-import numpy as np
 
+from ..com import linked as linked_files
+from ..com.mesh import linked_file, new_clip_mesh, new_linked_mesh, outline
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
-from ..hypergs_blender.points import video_to_points
-from . import linked as linked_files
 
 NODE_GROUP = "HyperGS Frames"
 MODIFIER = "HyperGS Frames"
@@ -34,62 +31,6 @@ INPUTS = {
     "Show Points": ("NodeSocketBool", True),
     "Point Size": ("NodeSocketFloat", 1.0),
 }
-
-
-def write_points(mesh, points: dict) -> None:
-    """Fill an empty mesh with vertices carrying the clip's point attributes (float32, foreach_set)."""
-    n = len(points["position"])
-    mesh.vertices.add(n)
-    mesh.attributes["position"].data.foreach_set("vector", points["position"].ravel())
-    for name, kind, key in (("scale", "FLOAT2", "vector"), ("rotation", "FLOAT", "value"),
-                            ("color", "FLOAT_COLOR", "color"), ("frame", "INT", "value")):
-        attribute = mesh.attributes.new(name, kind, "POINT")
-        attribute.data.foreach_set(key, np.ascontiguousarray(points[name]).ravel())
-    mesh.update()
-    try:  # make `color` the attribute that Mesh > Set Attribute and the colour display act on
-        mesh.attributes.active_color = mesh.attributes["color"]
-        mesh.attributes.active = mesh.attributes["color"]
-    except (AttributeError, TypeError, KeyError):
-        pass
-
-
-def new_clip_mesh(name: str, video: GaussianVideo):
-    mesh = bpy.data.meshes.new(name)
-    write_points(mesh, video_to_points(video))  # a padded clip (see points_to_video) without its padding
-    return mesh
-
-
-def _outline(canvas_width: int, canvas_height: int) -> np.ndarray:
-    aspect = canvas_width / max(1, canvas_height)
-    return np.array([[-aspect, -1, 0], [aspect, -1, 0], [aspect, 1, 0], [-aspect, 1, 0]], np.float32)
-
-
-def new_linked_mesh(name: str, canvas_width: int, canvas_height: int):
-    """A linked clip's mesh: the image plane's outline (4 vertices, 4 edges), no Gaussians."""
-    mesh = bpy.data.meshes.new(name)
-    mesh.from_pydata(_outline(canvas_width, canvas_height).tolist(), [(0, 1), (1, 2), (2, 3), (3, 0)], [])
-    mesh.update()
-    return mesh
-
-
-def read_clip_points(mesh) -> dict:
-    """Every frame's points of an embedded clip's (original, Object Mode) mesh: position, scale,
-    rotation, color (RGB), frame. Raises HyperGSError when an attribute is missing or unreadable."""
-    from ..engine.geometry import read_points
-    points = read_points(mesh)
-    frame = mesh.attributes.get("frame")
-    if points is None or frame is None or frame.domain != "POINT" or frame.data_type not in ("INT", "FLOAT"):
-        raise HyperGSError(f"'{mesh.name}' lacks the clip's point attributes (scale, rotation, color, frame)")
-    values = np.empty(len(mesh.vertices), np.int32 if frame.data_type == "INT" else np.float32)
-    frame.data.foreach_get("value", values)
-    points["frame"] = np.floor(values + 0.5).astype(np.int64) if values.dtype != np.int32 else values
-    return points
-
-
-def linked_file(obj) -> str:
-    """Absolute path of a linked clip's file ('' when none is set)."""
-    path = obj.hypergs.linked_path
-    return bpy.path.abspath(path, library=obj.library) if path else ""
 
 
 def _socket(sockets, name, kind=None):
@@ -317,7 +258,7 @@ def refresh_linked(obj) -> None:
     s.canvas_width, s.canvas_height, s.fps = reader.canvas_width, reader.canvas_height, reader.fps
     mesh = obj.data
     if obj.mode == "OBJECT" and len(mesh.vertices) == 4 and not mesh.attributes.get("frame"):
-        mesh.vertices.foreach_set("co", _outline(reader.canvas_width, reader.canvas_height).ravel())
+        mesh.vertices.foreach_set("co", outline(reader.canvas_width, reader.canvas_height).ravel())
         mesh.update()
     obj.update_tag()
 

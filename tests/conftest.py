@@ -32,13 +32,20 @@ def moving_video(tmp_path):
     return write_video(tmp_path / "moving.mp4", frames)
 
 
+def make_pan_clip(path, width=432, height=240, frames=70):
+    """A real-looking test movie: a camera pan over a procedural image (H.264 yuv420p, 24 fps, crf 18),
+    the size of the DAVIS clips; its mdat comes before its moov."""
+    from hypergs_blender.bench.scale import make_pan_video
+    make_pan_video(path, seconds=frames / 24, width=width, height=height, fps=24, crf=18)
+    return path
+
+
 def run_blender_session(script, work: Path, encoder: str, timeout: float) -> tuple[dict, str]:
     """Build the extension zip, then run `script ZIP WORK OUT.json` in a fresh Python (bpy can be
     imported once per process) with $HYPERGS_ENCODER defaulting to `encoder`. Returns the steps'
     results and the session's console output (Blender prints render reports there)."""
-    sys.path.insert(0, str(ROOT / "tools"))
-    import blender_main_job
-    zip_path = blender_main_job.build_zip(work / "dist")
+    from hypergs_blender.bench.blender import build_zip
+    zip_path = build_zip(work / "dist")
     env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder))
     out = work / "session.json"
     python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2

@@ -1,9 +1,7 @@
-"""bench vs-fit / vs-x265 / scale (hypergs_blender/bench_compare.py) and tools/make_plots.py: the
-matched-PSNR and matched-quality interpolation, refine_ladder against fit.refine_params, the reports'
-JSON shape on a tiny synthetic video with tiny settings, and the scale bench's bounded memory."""
+"""bench vs-fit / vs-x265 / scale / plots (hypergs_blender/bench/): the matched-PSNR and
+matched-quality interpolation, refine_ladder against refine.refine_params, the reports' JSON shape on a tiny synthetic video with tiny settings, and the scale bench's bounded memory."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -12,11 +10,11 @@ import numpy as np
 import pytest
 
 from conftest import write_video
-from hypergs_blender import bench_compare as bc
-from hypergs_blender.cli import build_parser
-from hypergs_blender.encode import FloorEncoder, encode_frames
-from hypergs_blender.fit import refine_params
-from hypergs_blender.hgs import HgsReader
+from hypergs_blender.bench import common, plots, scale, vs_fit, vs_x265
+from hypergs_blender.commands.cli import build_parser
+from hypergs_blender.encode import FloorEncoder, encode_frames, split_count
+from hypergs_blender.refine import refine_params
+from hypergs_blender.io.hgs import HgsReader
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,26 +38,26 @@ def tiny_video(tmp_path_factory):
 
 def test_matched_ratio_interpolates_in_log_time():
     points = [(10.0, 30.0), (1.0, 20.0)]  # any order
-    m = bc.matched_ratio(25.0, 0.01, points)
+    m = vs_fit.matched_ratio(25.0, 0.01, points)
     assert m["bound"] == "="
     assert m["fit_seconds"] == pytest.approx(math.sqrt(10.0))  # halfway in PSNR = halfway in log time
     assert m["ratio"] == pytest.approx(100 * math.sqrt(10.0))
-    assert bc.matched_ratio(30.0, 1.0, points)["fit_seconds"] == pytest.approx(10.0)
+    assert vs_fit.matched_ratio(30.0, 1.0, points)["fit_seconds"] == pytest.approx(10.0)
 
 
 def test_matched_ratio_bounds_outside_the_fitting_curve():
     points = [(1.0, 20.0), (10.0, 30.0)]
-    below = bc.matched_ratio(15.0, 0.5, points)  # fitting's cheapest rung already beats us
+    below = vs_fit.matched_ratio(15.0, 0.5, points)  # fitting's cheapest rung already beats us
     assert below["bound"] == "<=" and below["fit_seconds"] == 1.0 and below["ratio"] == pytest.approx(2.0)
-    above = bc.matched_ratio(35.0, 0.5, points)  # no rung reaches us: at least the last rung's time
+    above = vs_fit.matched_ratio(35.0, 0.5, points)  # no rung reaches us: at least the last rung's time
     assert above["bound"] == ">=" and above["fit_seconds"] == 10.0 and above["ratio"] == pytest.approx(20.0)
-    assert bc.matched_ratio(25.0, 1.0, [])["ratio"] is None
+    assert vs_fit.matched_ratio(25.0, 1.0, [])["ratio"] is None
 
 
 def test_matched_ratio_uses_the_first_rung_that_reaches_us():
     # fitting is not monotone (a longer run ended lower): the first crossing counts
     points = [(1.0, 20.0), (3.0, 26.0), (10.0, 24.0), (30.0, 32.0)]
-    m = bc.matched_ratio(23.0, 1.0, points)
+    m = vs_fit.matched_ratio(23.0, 1.0, points)
     assert m["bound"] == "="
     expected = math.exp(math.log(1.0) + 0.5 * (math.log(3.0) - math.log(1.0)))
     assert m["fit_seconds"] == pytest.approx(expected)
@@ -68,15 +66,15 @@ def test_matched_ratio_uses_the_first_rung_that_reaches_us():
 def test_bpp_at_psnr_and_pairs():
     ref = [{"crf": 23, "psnr": 34.0, "bpp": 0.4, "ssim": 0.9, "encode_fps": 50.0, "decode_fps": 500.0},
            {"crf": 33, "psnr": 30.0, "bpp": 0.1, "ssim": 0.8, "encode_fps": 60.0, "decode_fps": 600.0}]
-    bpp, bound = bc.bpp_at_psnr(32.0, ref)
+    bpp, bound = vs_x265.bpp_at_psnr(32.0, ref)
     assert bound == "=" and bpp == pytest.approx(0.2)  # geometric mean of 0.1 and 0.4
-    assert bc.bpp_at_psnr(28.0, ref) == (0.1, "<=")
-    assert bc.bpp_at_psnr(36.0, ref) == (0.4, ">=")
+    assert vs_x265.bpp_at_psnr(28.0, ref) == (0.1, "<=")
+    assert vs_x265.bpp_at_psnr(36.0, ref) == (0.4, ">=")
     ours = [{"n": 100, "refine": 0, "hgs": [{"bits": 8, "bpp": 0.4, "psnr": 31.0, "ssim": 0.85, "encode_fps": 120.0,
                                              "decode_fps": 300.0},
                                             {"bits": 4, "bpp": 0.3, "psnr": 28.0, "ssim": 0.7, "encode_fps": 120.0,
                                              "decode_fps": 300.0}]}]
-    pairs = bc.match_pairs(ours, ref)
+    pairs = vs_x265.match_pairs(ours, ref)
     assert [p["nearest"]["crf"] for p in pairs] == [33, 33]
     assert pairs[0]["reference_bpp_at_psnr"] == pytest.approx(0.1 * 4 ** 0.25)  # a quarter of the way in log
     assert pairs[0]["bpp_ratio"] == pytest.approx(4 / 4 ** 0.25) and pairs[0]["bpp_ratio_bound"] == "="
@@ -86,32 +84,32 @@ def test_bpp_at_psnr_and_pairs():
 
 
 def test_grid_and_counts():
-    assert bc.auto_grid(432, 240, 128) == 2 and bc.auto_grid(64, 48, 128) == 1 and bc.auto_grid(1280, 720, 128) == 6
-    assert bc.split_count(250, 2) == 248 and bc.split_count(1000, 2) == 1000 and bc.split_count(3, 2) == 4
-    assert bc.parse_size("native") is None and bc.parse_size("256") == 256
+    assert common.auto_grid(432, 240, 128) == 2 and common.auto_grid(64, 48, 128) == 1 and common.auto_grid(1280, 720, 128) == 6
+    assert split_count(250, 2) == 252 and split_count(249, 2) == 248 and split_count(1000, 2) == 1000 and split_count(3, 2) == 4
+    assert common.parse_size("native") is None and common.parse_size("256") == 256
 
 
 # ---- refine ----------------------------------------------------------------------------------------------
 
 def test_refine_ladder_matches_refine_params(tiny_video):
-    """The bench shares the least-squares step between K values; each K must equal refine_params(K)
-    (this fails if fit.refine_params' steps or learning rate change without REFINE_LR)."""
-    frames, _, _ = bc.load_frames(tiny_video, 4, 32)
+    """The bench takes every K from one refinement run; each K must equal refine_params(K) (this fails
+    if refine_params' step size starts to depend on K)."""
+    frames, _, _ = common.load_frames(tiny_video, 4, 32)
     params = encode_frames(frames, FloorEncoder(), 16)
-    ladder = bc.refine_ladder(params, frames, (1, 4))
+    ladder = vs_fit.refine_ladder(params, frames, (1, 4))
     for k, refined, seconds in ladder:
         np.testing.assert_allclose(refined, refine_params(params, frames, k), atol=2e-4)
         assert seconds > 0
     assert not np.allclose(ladder[0][1], ladder[1][1])  # 3 Adam steps did move something
-    before = bc.psnr_of(bc.render(params, 32, 32), frames).mean()
-    after = bc.psnr_of(bc.render(ladder[1][1], 32, 32), frames).mean()
+    before = common.psnr_of(common.render(params, 32, 32), frames).mean()
+    after = common.psnr_of(common.render(ladder[1][1], 32, 32), frames).mean()
     assert after > before  # refining the grid floor helps
 
 
 # ---- reports ----------------------------------------------------------------------------------------------
 
 def test_vs_fit_report_shape(tiny_video, tmp_path):
-    report = bc.bench_vs_fit([tiny_video], gaussians=(18,), refine_steps=(1, 3), fit_iters=(2, 4, 8),
+    report = vs_fit.bench_vs_fit([tiny_video], gaussians=(18,), refine_steps=(1, 3), fit_iters=(2, 4, 8),
                              sizes=("32", "native"), frames=4, encoder="floor", device="cpu", grid=2,
                              fit_budget=0.0)
     report = json.loads(json.dumps(report))  # JSON-clean
@@ -120,7 +118,7 @@ def test_vs_fit_report_shape(tiny_video, tmp_path):
     square, native = video["sizes"]
     assert (square["size"], square["width"], square["height"], square["grid"]) == ("32", 32, 32, 1)
     assert (native["size"], native["width"], native["height"], native["grid"]) == ("native", 64, 48, 2)
-    assert square["rows"][0]["n"] == 18 and native["rows"][0]["n"] == 16  # rounded to the 2x2 grid
+    assert square["rows"][0]["n"] == 18 and native["rows"][0]["n"] == 20  # the nearest multiple of 4 (2x2 grid)
     for block in (square, native):
         (row,) = block["rows"]
         assert block["frames"] == 4 and len(row["feedforward"]["psnr_per_frame"]) == 4
@@ -137,7 +135,7 @@ def test_vs_fit_report_shape(tiny_video, tmp_path):
 
 
 def test_vs_fit_stops_once_fitting_reaches_us(tiny_video):
-    report = bc.bench_vs_fit([tiny_video], gaussians=(16,), refine_steps=(), fit_iters=(30, 60), sizes=("32",),
+    report = vs_fit.bench_vs_fit([tiny_video], gaussians=(16,), refine_steps=(), fit_iters=(30, 60), sizes=("32",),
                              frames=4, encoder="floor", device="cpu")
     row = report["videos"][0]["sizes"][0]["rows"][0]
     # the grid floor is easy to beat: 30 fitting steps reach it, so the 60-step rung is not run
@@ -147,7 +145,7 @@ def test_vs_fit_stops_once_fitting_reaches_us(tiny_video):
 
 
 def test_vs_x265_report_shape(tiny_video):
-    report = bc.bench_vs_x265([tiny_video], gaussians=(16,), bits=(8, 4), crfs=(20, 40), size="32", frames=8,
+    report = vs_x265.bench_vs_x265([tiny_video], gaussians=(16,), bits=(8, 4), crfs=(20, 40), size="32", frames=8,
                               refine_steps=(0, 2), encoder="floor", device="cpu", preset="ultrafast")
     report = json.loads(json.dumps(report))
     (video,) = report["videos"]
@@ -170,13 +168,13 @@ def test_vs_x265_report_shape(tiny_video):
 @pytest.fixture(scope="module")
 def pan_video(tmp_path_factory):
     path = tmp_path_factory.mktemp("pan") / "pan.mp4"
-    info = bc.make_pan_video(path, seconds=6, width=480, height=272, fps=24, preset="ultrafast")
+    info = scale.make_pan_video(path, seconds=6, width=480, height=272, fps=24, preset="ultrafast")
     assert info["frames"] == 144
     return path
 
 
 def _encode_job(video, out, hold):
-    return bc.run_scale_job({"job": "encode", "video": str(video), "output": str(out), "gaussians": 64, "grid": 1,
+    return scale.run_scale_job({"job": "encode", "video": str(video), "output": str(out), "gaussians": 64, "grid": 1,
                              "chunk_clips": 2, "encoder": "floor", "device": "cpu", "hold_frames": hold},
                             timeout=300)
 
@@ -187,9 +185,9 @@ def test_scale_encode_memory_is_bounded(pan_video, tmp_path):
     measurement must see it, so the test can fail."""
     frame_mb = 480 * 272 * 3 / 2**20
     streamed = _encode_job(pan_video, tmp_path / "a.hgs", hold=False)
-    streamed.update(bc.memory_growth(streamed))
+    streamed.update(scale.memory_growth(streamed))
     held = _encode_job(pan_video, tmp_path / "b.hgs", hold=True)
-    held.update(bc.memory_growth(held))
+    held.update(scale.memory_growth(held))
     assert streamed["frames"] == held["frames"] == 144 and held["held_frames"] == 144
     if not streamed["peak_reset"]:
         pytest.skip("cannot reset the peak RSS here (/proc/self/clear_refs): start-up would hide the encode's")
@@ -201,7 +199,7 @@ def test_scale_encode_memory_is_bounded(pan_video, tmp_path):
 
 
 def test_bench_scale_report(tmp_path):
-    report = bc.bench_scale(None, seconds=1, width=160, height=96, gaussians=32, grid=2, chunk_clips=1,
+    report = scale.bench_scale(None, seconds=1, width=160, height=96, gaussians=32, grid=2, chunk_clips=1,
                             render_width=240, render_height=144, render_frames=3, psnr_frames=2, encoder="floor",
                             device="cpu", keep=str(tmp_path), also_encode_video=True)
     report = json.loads(json.dumps(report))
@@ -231,19 +229,16 @@ def test_bench_commands_are_registered():
 
 
 def test_make_plots_writes_pngs_and_tables(tiny_video, tmp_path):
-    spec = importlib.util.spec_from_file_location("make_plots", ROOT / "tools" / "make_plots.py")
-    make_plots = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(make_plots)
     bench = tmp_path / "bench"
     bench.mkdir()
-    fit = bc.bench_vs_fit([tiny_video], gaussians=(16,), refine_steps=(1,), fit_iters=(2,), sizes=("32",), frames=4,
+    fit = vs_fit.bench_vs_fit([tiny_video], gaussians=(16,), refine_steps=(1,), fit_iters=(2,), sizes=("32",), frames=4,
                           encoder="floor", device="cpu")
-    x265 = bc.bench_vs_x265([tiny_video], gaussians=(16,), bits=(8, 4), crfs=(30,), size="32", frames=4,
+    x265 = vs_x265.bench_vs_x265([tiny_video], gaussians=(16,), bits=(8, 4), crfs=(30,), size="32", frames=4,
                             encoder="floor", device="cpu", preset="ultrafast")
     (bench / "vs_fit.json").write_text(json.dumps(fit))
     (bench / "vs_x265.json").write_text(json.dumps(x265))
     (bench / "other.json").write_text(json.dumps({"machine": {}}))  # e.g. `bench codec -o`: skipped
-    written = make_plots.make_plots(bench, tmp_path / "docs", log=lambda message: None)
+    written = plots.make_plots(bench, tmp_path / "docs", log=lambda message: None)
     names = sorted(p.name for p in written)
     assert names == ["tables.md", "vs_fit.png", "vs_x265.png"]
     for p in written:

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_blender_session, step
+from conftest import make_pan_clip, run_blender_session, step
 
 ROOT = Path(__file__).resolve().parents[1]
-TENNIS = ROOT.parent / "shared" / "videos" / "davis_tennis.mp4"
+CLIP_NAME = "pan"  # the session's movie: a 432 x 240, 70-frame pan that conftest.make_pan_clip writes
 # The encoder the session converts with: the bundled network (HYPERGS_ENCODER=floor for the no-learning floor).
 ENCODER = "bundled"
 GAUSSIANS = 1000
@@ -30,9 +30,8 @@ SESSION_TIMEOUT = 600
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    if not TENNIS.is_file():
-        pytest.skip(f"{TENNIS} is missing")
     work = tmp_path_factory.mktemp("blender")
+    make_pan_clip(work / f"{CLIP_NAME}.mp4")
     return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)[0]
 
 
@@ -150,7 +149,7 @@ def test_reencode_replaces_points_and_keeps_modifiers(session):
     assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 500, 500, 2)
     assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 500)
     assert r["psnr"] != r["psnr_before"]
-    assert r["mesh"] == "tennis" and r["meshes"] == 1  # the old mesh is gone, its name kept
+    assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
 
 
 def test_viewport_texture_draws(session):
@@ -164,11 +163,11 @@ def test_viewport_texture_draws(session):
 # Blender side (run as a script: python test_blender_addon.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    sys.path.insert(0, str(ROOT / "tools"))
-    import blender_main_job as job
+    from hypergs_blender.bench import blender as job
 
     results = {}
     record = job.step_recorder(results, out_path)
+    CLIP = Path(work) / f"{CLIP_NAME}.mp4"
 
     bpy = job.start_blender(Path(work) / "user")
     ctx = {}
@@ -185,17 +184,18 @@ def run_session(zip_path, work, out_path):
 
     addon = ctx["addon"]
     from hypergs_blender.encode import encode_video
+    from hypergs_blender.io.frames import iter_frames
+    from hypergs_blender.io.images import resize_exact
     from hypergs_blender.metrics import psnr
-    from hypergs_blender.points import points_to_params, render_params_srgb
-    from hypergs_blender.render import render_frames
-    from hypergs_blender.video import iter_frames, resize_exact
+    from hypergs_blender.points import points_to_params
+    from hypergs_blender.render import render_frames, render_params
     encoder = _import(addon, "ops.encoder").make_encoder()
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = 24, 1.0
 
     @record("errors")
     def _():
-        data = TENNIS.read_bytes()
+        data = CLIP.read_bytes()
         corrupt = Path(work) / "corrupt.mp4"  # container intact, frame data zeroed after the first frames
         start, stop = data.find(b"mdat") + 20000, data.find(b"moov") - 4
         assert 0 < start < stop, "expected mdat before moov"
@@ -253,26 +253,26 @@ def run_session(zip_path, work, out_path):
 
     @record("cancel")
     def _():
-        enc = _import(addon, "hypergs_blender.encode")
-        original = enc.encode_video
+        plan = _import(addon, "hypergs_blender.encode").EncodePlan
+        original = plan.chunks
         calls = []
 
-        def cancelling(*args, progress=None, **kwargs):  # what Esc does: progress returns False
+        def cancelling(self, progress=None, *args, **kwargs):  # what Esc does: progress returns False
             def progress_then_cancel(done, total):
                 calls.append(done)
                 progress(done, total)
                 return done == 0
-            return original(*args, progress=progress_then_cancel, **kwargs)
+            return original(self, progress_then_cancel, *args, **kwargs)
 
         before = snapshot(bpy)
-        enc.encode_video = cancelling
+        plan.chunks = cancelling
         try:
-            result = bpy.ops.hypergs.import_video(filepath=str(TENNIS))
+            result = bpy.ops.hypergs.import_video(filepath=str(CLIP))
         finally:
-            enc.encode_video = original
+            plan.chunks = original
         after = snapshot(bpy)
         jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob(jobs.EncodeRequest(str(TENNIS), 500, 1)).start()
+        threaded = jobs.EncodeJob(jobs.EncodeRequest(str(CLIP), 500, 1)).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
@@ -290,17 +290,17 @@ def run_session(zip_path, work, out_path):
                    camera=scene.camera.name if scene.camera else None,
                    active=bpy.context.view_layer.objects.active.name,
                    display_points=display_points(bpy, obj))
-        bpy.data.meshes.remove(obj.data)  # the tennis renders below show the tennis clip alone
+        bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    strip = job.add_movie_strip(bpy, scene, TENNIS, frame_start=1, name="tennis")
-    reference = encode_video(str(TENNIS), encoder, GAUSSIANS, 1)
-    truth = {i: f for i, f in iter_frames(str(TENNIS), [f - 1 for f in RENDER_FRAMES])}
+    strip = job.add_movie_strip(bpy, scene, CLIP, frame_start=1, name=CLIP_NAME)
+    reference = encode_video(str(CLIP), encoder, GAUSSIANS, 1)
+    truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("convert")
     def _():
         result = bpy.ops.hypergs.convert_strip(gaussian_count=GAUSSIANS)
-        obj = bpy.data.objects["tennis"]
+        obj = bpy.data.objects[CLIP_NAME]
         ctx["obj"] = obj
         s = obj.hypergs
         scene.frame_set(10)
@@ -328,7 +328,7 @@ def run_session(zip_path, work, out_path):
         return job.read_png(bpy, png), seconds
 
     def core_render(params, width, height):
-        return np.clip(render_params_srgb(params, 432, 240, width, height), 0, 1)
+        return np.clip(render_params(params, 432, 240, width, height), 0, 1)
 
     @record("render")
     def _():
@@ -449,7 +449,7 @@ def run_session(zip_path, work, out_path):
         path = Path(work) / "clip.blend"
         bpy.ops.wm.save_as_mainfile(filepath=str(path))
         bpy.ops.wm.open_mainfile(filepath=str(path))
-        again = bpy.data.objects["tennis"]
+        again = bpy.data.objects[CLIP_NAME]
         after_attrs = read_mesh(again.data)
         sc = bpy.context.scene
         sc.frame_set(35)

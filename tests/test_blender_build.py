@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from hypergs_blender.bench import blender as build_extension
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
-import build_extension  # noqa: E402
 
 PLATFORMS = ["linux-x64", "windows-x64", "macos-arm64"]
 
@@ -71,17 +71,21 @@ def test_zip_contents(zips):
     combined, split = zips
     names = set(zipfile.ZipFile(combined[0]).namelist())
     for required in ("blender_manifest.toml", "__init__.py", "ops/__init__.py", "ui/__init__.py",
-                     "engine/__init__.py", "hypergs_blender/encode.py", "hypergs_blender/points.py",
-                     "hypergs_blender/raster.py"):
+                     "engine/__init__.py", "com/mesh.py", "hypergs_blender/encode.py", "hypergs_blender/points.py",
+                     "hypergs_blender/raster.py", "hypergs_blender/io/hgs.py", "hypergs_blender/io/frames.py"):
         assert required in names, required
     for weight in (ROOT / "hypergs_blender" / "weights").glob("*"):
-        if weight.is_file():
+        if weight.suffix in (".onnx", ".json"):
             assert f"hypergs_blender/weights/{weight.name}" in names
+    # Only what Blender runs: no training, benchmarks, command line, sample or torch weights.
+    for name in names:
+        assert not name.startswith(("hypergs_blender/training/", "hypergs_blender/bench/",
+                                    "hypergs_blender/commands/", "hypergs_blender/samples/")), name
+        assert not name.endswith((".safetensors", "__main__.py")), name
     for name in names:
         top = name.split("/")[0]
         assert top not in {".venv", "tests", "data", "runs", "docs", "tools", ".git", ".ci", "dist"}, name
         assert "__pycache__" not in name and not name.endswith(".pyc"), name
-        assert not name.startswith("hypergs_blender/samples/"), name
     assert sum(n.startswith("wheels/") for n in names) == 6
     linux = next(z for z in split if z.stem.endswith("linux_x64"))
     wheels = [n for n in zipfile.ZipFile(linux).namelist() if n.startswith("wheels/")]
@@ -98,7 +102,7 @@ def test_build_is_idempotent(tmp_path):
 
 
 def test_command_line(tmp_path):
-    result = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--output-dir",
-                             str(tmp_path), "--split-platforms"], capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "hypergs_blender", "build-extension", "--output-dir",
+                             str(tmp_path), "--split-platforms"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     assert len(result.stdout.split()) == 3

@@ -14,7 +14,7 @@ import pytest
 from conftest import run_blender_session, step
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import ROOT, _import, attempt_unchanged, diff, read_mesh, snapshot  # noqa: E402
+from test_blender_addon import _import, attempt_unchanged, diff, read_mesh, snapshot  # noqa: E402
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
@@ -138,8 +138,7 @@ def test_image_strip_converts_keeping_its_timing(session):
 # Blender side (run as a script: python test_blender_io.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    sys.path.insert(0, str(ROOT / "tools"))
-    import blender_main_job as job
+    from hypergs_blender.bench import blender as job
 
     work = Path(work)
     results = {}
@@ -147,12 +146,13 @@ def run_session(zip_path, work, out_path):
 
     bpy = job.start_blender(work / "user")
     addon = job.install_extension(bpy, zip_path)
-    linked = _import(addon, "ops.linked")
-    from hypergs_blender.codec import Quantizer
+    linked = _import(addon, "com.linked")
+    from hypergs_blender.io.codec import Quantizer
     from hypergs_blender.encode import encode_video
     from hypergs_blender.gaussians import GaussianVideo
-    from hypergs_blender.hgs import load_hgs
-    from hypergs_blender.image_sequence import write_image
+    from hypergs_blender.io.hgs import load_hgs
+    from hypergs_blender.io.npz import save_npz
+    from hypergs_blender.io.images import write_image
     from hypergs_blender.points import points_to_params
 
     scene = bpy.context.scene
@@ -171,7 +171,7 @@ def run_session(zip_path, work, out_path):
     original = GaussianVideo(params, *CANVAS, fps=30.0, grid=(1, 1),
                              source=dict(path="/videos/orig.mp4", frames=list(range(5, 5 + T)), encoder="floor",
                                          psnr=31.5))
-    original.save(work / "orig.npz")
+    save_npz(original, work / "orig.npz")
     bounds = Quantizer.fit(params, 8).max_error()
 
     def mesh_params(obj):

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from hypergs_blender.gaussians import GaussianVideo
-from hypergs_blender.points import (FRAME_COUNTS, clip_frame_index, frame_counts, linear_to_srgb, params_to_points,
-                                    points_to_params, points_to_video, render_params_srgb,
-                                    srgb_image_to_linear_rgba, srgb_to_linear, video_to_points)
-from hypergs_blender.render import render_frames
+from hypergs_blender.colour import linear_to_srgb, srgb_image_to_linear_rgba, srgb_to_linear
+from hypergs_blender.points import (FRAME_COUNTS, clip_frame_index, frame_counts, params_to_points, points_to_params,
+                                    points_to_video, video_to_points)
+from hypergs_blender.render import render_frames, render_params
 
 
 def random_params(t, n, seed=0):
@@ -57,13 +57,13 @@ def test_round_trip_renders_the_same_at_another_aspect():
     p = random_params(1, 80, seed=3)
     pts = params_to_points(p, 432, 240)
     params = points_to_params(pts["position"], pts["scale"], pts["rotation"], pts["color"], 432, 240)
-    ours = render_params_srgb(params, 432, 240, 128, 128)
+    ours = render_params(params, 432, 240, 128, 128)
     ref = render_frames(GaussianVideo(p, 432, 240), 128, 128)[0]
     np.testing.assert_allclose(ours, ref, atol=1e-4)
 
 
 def test_empty_frame_renders_black():
-    assert not render_params_srgb(np.zeros((0, 8), np.float32), 10, 10, 7, 5).any()
+    assert not render_params(np.zeros((0, 8), np.float32), 10, 10, 7, 5).any()
 
 
 def test_render_pass_is_linear_and_bottom_up():
@@ -105,8 +105,8 @@ def test_ragged_frames_are_padded_and_unpadded():
     for k in ("position", "scale", "color"):
         np.testing.assert_allclose(back[k], pts[k][np.argsort(pts["frame"], kind="stable")], atol=2e-5)
     # the padding renders nothing
-    np.testing.assert_allclose(render_params_srgb(video.params[1], 64, 48, 32, 24),
-                               render_params_srgb(video.params[1, :4], 64, 48, 32, 24), atol=1e-6)
+    np.testing.assert_allclose(render_params(video.params[1], 64, 48, 32, 24),
+                               render_params(video.params[1, :4], 64, 48, 32, 24), atol=1e-6)
 
 
 def test_regular_clip_has_no_frame_counts_and_bad_points_are_left_out():

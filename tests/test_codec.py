@@ -1,5 +1,5 @@
 """Codec and .hgs container: quantization bounds, exact residual coding, round trips, random access,
-streaming, the golden file, clip_io dispatch, `hypergs info`, and a tiny rate-distortion bench."""
+streaming, the golden file, io.clips dispatch, `hypergs info`, and a tiny rate-distortion bench."""
 from __future__ import annotations
 
 import json
@@ -11,14 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hypergs_blender.codec import (ANCHOR, INTRA, MODES, PREVIOUS, CodecError, Quantizer, decode_group,
+from hypergs_blender.io.codec import (ANCHOR, INTRA, MODES, PREVIOUS, CodecError, Quantizer, decode_group,
                                    encode_group, order_stability, to_domain)
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.gaussians import GaussianVideo
-from hypergs_blender.hgs import HgsError, HgsReader, HgsWriter, load_hgs, save_hgs
+from hypergs_blender.io.hgs import HgsError, HgsReader, HgsWriter, load_hgs, save_hgs
 
-VIDEO = Path(__file__).resolve().parents[2] / "shared" / "videos" / "davis_tennis.mp4"
-needs_video = pytest.mark.skipif(not VIDEO.is_file(), reason=f"{VIDEO} is missing")
+VIDEO = Path(__file__).resolve().parents[1] / "hypergs_blender" / "samples" / "sample.mp4"  # the bundled sample
 
 
 def random_params(rng, t, n, canvas=64):
@@ -199,7 +198,6 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
     assert size < video.params.size * bits / 8
 
 
-@needs_video
 def test_hgs_round_trip_of_floor_encoder_gaussians(tmp_path):
     from hypergs_blender.encode import FloorEncoder, encode_video
     video = encode_video(VIDEO, FloorEncoder(), 256, size=64, num_frames=6)
@@ -229,7 +227,7 @@ def test_random_access_matches_sequential_decoding(tmp_path):
 
 
 def test_clip_packed_as_bytes_reads_like_a_file(tmp_path):
-    from hypergs_blender.hgs import hgs_bytes
+    from hypergs_blender.io.hgs import hgs_bytes
     video = GaussianVideo(moving_params(np.random.default_rng(10), 5, 30), 32, 32, 12.0)
     data = hgs_bytes(video, bits=6, group_size=2)
     save_hgs(video, tmp_path / "c.hgs", bits=6, group_size=2)
@@ -335,10 +333,10 @@ GOLDEN_HGS = bytes.fromhex(
     "000000279e72ea")
 
 
-# ---- clip_io, info ---------------------------------------------------------------------------------
+# ---- io.clips, info ---------------------------------------------------------------------------------
 
-def test_clip_io_dispatches_on_suffix(tmp_path):
-    from hypergs_blender.clip_io import load_clip, save_clip
+def test_clips_dispatch_on_suffix(tmp_path):
+    from hypergs_blender.io.clips import load_clip, save_clip
     video = GaussianVideo(moving_params(np.random.default_rng(3), 3, 30), 40, 30, 25.0)
     for name in ("c.hgs", "c.npz", "c.usda"):
         save_clip(video, tmp_path / name, bits=8)
@@ -354,14 +352,14 @@ def test_clip_io_dispatches_on_suffix(tmp_path):
 
 def hypergs(monkeypatch):
     """`hypergs` (cli.main) with only this module's commands registered: the others are not under test."""
-    from hypergs_blender import cli
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ["codec_cli"])
+    from hypergs_blender.commands import cli
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["clips"])
     return cli.main
 
 
-def test_codec_cli_is_registered():
-    from hypergs_blender import cli
-    assert "codec_cli" in cli.COMMAND_MODULES
+def test_clips_commands_are_registered():
+    from hypergs_blender.commands import cli
+    assert "clips" in cli.COMMAND_MODULES
 
 
 def test_info_command(tmp_path, capsys, monkeypatch):
@@ -380,9 +378,8 @@ def test_info_command(tmp_path, capsys, monkeypatch):
     assert "not a .hgs" in capsys.readouterr().err
 
 
-@needs_video
 def test_bench_codec_reports_rate_and_distortion():
-    from hypergs_blender.codec_cli import bench_codec, format_codec_table
+    from hypergs_blender.bench.codec import bench_codec, format_codec_table
     result = bench_codec([VIDEO], gaussians=[64], bits=[8, 4], crfs=[35], size=32, num_frames=4, encoder="floor",
                          preset="ultrafast", position_bits=10)
     video = result["videos"][0]

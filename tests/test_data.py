@@ -6,8 +6,10 @@ import warnings
 import numpy as np
 import pytest
 
-from hypergs_blender import data
-from hypergs_blender.data import DataError
+from hypergs_blender.commands import data as data_commands
+from hypergs_blender.io.images import list_images, read_image, write_image
+from hypergs_blender.training import data, photos, prepare, procedural, videos
+from hypergs_blender.training.sources import DataError, make_batch
 
 
 def smooth_texture(rng, h, w, blur=6):
@@ -27,8 +29,8 @@ def photo_folder(tmp_path_factory):
     folder = tmp_path_factory.mktemp("photos")
     rng = np.random.default_rng(0)
     for i, (h, w) in enumerate([(150, 200), (180, 140), (160, 160)]):
-        data.write_image(folder / f"photo{i}.png", smooth_texture(rng, h, w))
-    data.write_image(folder / "photo3.jpg", smooth_texture(rng, 140, 190))
+        write_image(folder / f"photo{i}.png", smooth_texture(rng, h, w))
+    write_image(folder / "photo3.jpg", smooth_texture(rng, 140, 190))
     (folder / "notes.svg").write_text("<svg/>")  # ignored
     return folder
 
@@ -36,7 +38,7 @@ def photo_folder(tmp_path_factory):
 @pytest.fixture(scope="module")
 def photo_root(tmp_path_factory, photo_folder):
     root = tmp_path_factory.mktemp("data")
-    data.prepare_photos(root, folder=photo_folder, val_count=1, log=lambda *a: None)
+    prepare.prepare_photos(root, folder=photo_folder, val_count=1, log=lambda *a: None)
     return root
 
 
@@ -72,7 +74,7 @@ def check_clip(clip, T, size):
 
 @pytest.mark.parametrize("mode", ["shapes", "leaves", "mixed"])
 def test_procedural_clips(mode):
-    source = data.ProceduralSource(mode)
+    source = procedural.ProceduralSource(mode)
     for i in range(4):
         clip = source.sample(np.random.default_rng(i), 3, 48)
         check_clip(clip, 3, 48)
@@ -80,7 +82,7 @@ def test_procedural_clips(mode):
 
 
 def test_procedural_motion_and_edges():
-    source = data.ProceduralSource()
+    source = procedural.ProceduralSource()
     moving = sharp = 0
     for i in range(16):
         clip = source.sample(np.random.default_rng(100 + i), 4, 64)
@@ -95,26 +97,26 @@ def test_procedural_motion_and_edges():
 
 def test_make_batch_is_a_pure_function():
     sources = data.build_sources("procedural:1")
-    a = data.make_batch(sources, seed=3, step=10, rank=0, batch_size=3, clip_frames=2, size=32)
-    b = data.make_batch(sources, seed=3, step=10, rank=0, batch_size=3, clip_frames=2, size=32)
+    a = make_batch(sources, seed=3, step=10, rank=0, batch_size=3, clip_frames=2, size=32)
+    b = make_batch(sources, seed=3, step=10, rank=0, batch_size=3, clip_frames=2, size=32)
     check_clip(a[0], 2, 32)
     assert a.shape == (3, 2, 32, 32, 3)
     np.testing.assert_array_equal(a, b)
     for other in (dict(seed=3, step=11, rank=0), dict(seed=3, step=10, rank=1), dict(seed=4, step=10, rank=0)):
-        c = data.make_batch(sources, batch_size=3, clip_frames=2, size=32, **other)
+        c = make_batch(sources, batch_size=3, clip_frames=2, size=32, **other)
         assert not np.array_equal(a, c), other
     # clip i does not depend on the batch size
-    d = data.make_batch(sources, seed=3, step=10, rank=0, batch_size=1, clip_frames=2, size=32)
+    d = make_batch(sources, seed=3, step=10, rank=0, batch_size=1, clip_frames=2, size=32)
     np.testing.assert_array_equal(a[:1], d)
 
 
 def test_make_batch_mixes_sources(photo_root):
     sources = data.build_sources("procedural:1,photos:1", root=photo_root)
-    batch = data.make_batch(sources, seed=0, step=0, rank=0, batch_size=6, clip_frames=2, size=32)
+    batch = make_batch(sources, seed=0, step=0, rank=0, batch_size=6, clip_frames=2, size=32)
     assert batch.shape == (6, 2, 32, 32, 3)
     # weight 0 is never drawn; clip i is its source's sample with clip i's generator
     photos = sources[1][0]
-    only_photos = data.make_batch([(sources[0][0], 0.0), (photos, 1.0)], 0, 0, 0, 2, 2, 32)
+    only_photos = make_batch([(sources[0][0], 0.0), (photos, 1.0)], 0, 0, 0, 2, 2, 32)
     for i in range(2):
         rng = np.random.default_rng([0, 0, 0]).spawn(2)[i]
         rng.random()  # the source draw
@@ -122,16 +124,16 @@ def test_make_batch_mixes_sources(photo_root):
 
 
 def test_photo_caches(photo_root, photo_folder):
-    train, val = photo_root / data.PHOTO_CACHE, photo_root / data.PHOTO_VAL_CACHE
-    images, names, _ = data.load_photo_cache(train)
-    val_images, val_names, _ = data.load_photo_cache(val)
+    train, val = photo_root / photos.PHOTO_CACHE, photo_root / photos.PHOTO_VAL_CACHE
+    images, names, _ = photos.load_photo_cache(train)
+    val_images, val_names, _ = photos.load_photo_cache(val)
     assert len(images) == 3 and len(val_images) == 1
     assert not set(names) & set(val_names)
     assert set(names) | set(val_names) == {"photo0.png", "photo1.png", "photo2.png", "photo3.jpg"}
     assert val_names == ["photo3.jpg"]  # JPEGs (photographs) are held out first
     assert all(im.dtype == np.uint8 and im.ndim == 3 and im.shape[2] == 3 for im in images)
     lines = []
-    data.prepare_photos(photo_root, folder=photo_folder, val_count=1, log=lines.append)
+    prepare.prepare_photos(photo_root, folder=photo_folder, val_count=1, log=lines.append)
     assert "up to date" in lines[-1]  # idempotent
 
 
@@ -148,7 +150,7 @@ def shift_error(a, b, dx, dy, margin=10):
 
 
 def test_photo_source_pans(photo_folder):
-    source = data.PhotoSource(photo_folder, max_rotation=0.0, max_zoom=0.0)
+    source = photos.PhotoSource(photo_folder, max_rotation=0.0, max_zoom=0.0)
     assert len(source) == 4
     source.MOTION_CLASSES = ((1.0, 3.0, 6.0),)  # always a clear pan (3-6 px per frame at 128 px)
     for i in range(3):
@@ -167,7 +169,7 @@ def test_photo_source_pans(photo_folder):
 
 
 def test_photo_source_zoom_rotation_stay_inside(photo_folder):
-    source = data.PhotoSource(photo_folder, max_rotation=0.3, max_zoom=0.5)
+    source = photos.PhotoSource(photo_folder, max_rotation=0.3, max_zoom=0.5)
     for i in range(8):
         clip = source.sample(np.random.default_rng(i), 4, 32)
         check_clip(clip, 4, 32)
@@ -177,16 +179,16 @@ def test_photo_source_zoom_rotation_stay_inside(photo_folder):
 
 def test_video_source(video_folder, tmp_path):
     lines = []
-    cache = data.prepare_videos(video_folder, root=tmp_path, cache_size=48, cache_frames=8,
+    cache = prepare.prepare_videos(video_folder, root=tmp_path, cache_size=48, cache_frames=8,
                                 clips_per_video=3, log=lines.append)
     assert (cache / "clips.npy").is_file() and (cache / "index.json").is_file()
     clips = np.load(cache / "clips.npy", mmap_mode="r")
     assert clips.shape == (3, 8, 48, 48, 3) and clips.dtype == np.uint8
-    data.prepare_videos(video_folder, root=tmp_path, cache_size=48, cache_frames=8, clips_per_video=3,
+    prepare.prepare_videos(video_folder, root=tmp_path, cache_size=48, cache_frames=8, clips_per_video=3,
                         log=lines.append)
     assert "up to date" in lines[-1]
     [(source, weight)] = data.build_sources(f"videos={video_folder}:0.5", root=tmp_path)
-    assert isinstance(source, data.VideoSource) and weight == 0.5
+    assert isinstance(source, videos.VideoSource) and weight == 0.5
     moved = 0
     for i in range(6):
         clip = source.sample(np.random.default_rng(i), 4, 32)
@@ -203,7 +205,7 @@ def test_video_source(video_folder, tmp_path):
 
 def test_build_sources(photo_root, tmp_path):
     sources = data.build_sources("procedural:0.4, photos:0.6", root=photo_root)
-    assert [type(s) for s, _ in sources] == [data.ProceduralSource, data.PhotoSource]
+    assert [type(s) for s, _ in sources] == [procedural.ProceduralSource, photos.PhotoSource]
     assert [w for _, w in sources] == [0.4, 0.6]
     [(s, w)] = data.build_sources("procedural=leaves")
     assert s.mode == "leaves" and w == 1.0
@@ -226,13 +228,13 @@ def test_build_sources(photo_root, tmp_path):
 def test_collect_photos_dedupes_and_filters(tmp_path):
     rng = np.random.default_rng(5)
     image = smooth_texture(rng, 200, 300)
-    data.write_image(tmp_path / "a.png", image)
+    write_image(tmp_path / "a.png", image)
     (tmp_path / "a_copy.png").write_bytes((tmp_path / "a.png").read_bytes())  # same file
-    data.write_image(tmp_path / "a_small.png", image[::2, ::2])  # same picture, smaller
-    data.write_image(tmp_path / "flat.png", np.full((200, 200, 3), 90, np.uint8))
-    data.write_image(tmp_path / "b.png", smooth_texture(rng, 200, 200))
+    write_image(tmp_path / "a_small.png", image[::2, ::2])  # same picture, smaller
+    write_image(tmp_path / "flat.png", np.full((200, 200, 3), 90, np.uint8))
+    write_image(tmp_path / "b.png", smooth_texture(rng, 200, 200))
     lines = []
-    keep, groups = data._collect_photos(data.list_images(tmp_path), log=lines.append)
+    keep, groups = prepare._collect_photos(list_images(tmp_path), log=lines.append)
     assert sorted(r["path"].name for r in keep) == ["a.png", "b.png"]
     assert len(lines) == 3
 
@@ -251,15 +253,15 @@ def test_validation_clips(photo_root, tmp_path):
 
 def test_cli_prepare_and_preview(photo_folder, tmp_path, capsys):
     parser = argparse.ArgumentParser()
-    data.add_commands(parser.add_subparsers(dest="command"))
+    data_commands.add_commands(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["prepare-data", "--root", str(tmp_path), "--photo-folder", str(photo_folder),
                               "--val-photos", "2"])
     args.func(args)
-    assert (tmp_path / data.PHOTO_CACHE).is_file() and (tmp_path / data.PHOTO_VAL_CACHE).is_file()
+    assert (tmp_path / photos.PHOTO_CACHE).is_file() and (tmp_path / photos.PHOTO_VAL_CACHE).is_file()
     assert "2 held-out" in capsys.readouterr().out
     out = tmp_path / "sheet.png"
     args = parser.parse_args(["preview-data", "--root", str(tmp_path), "--spec", "procedural:1,photos:1",
                               "--clips", "2", "--frames", "3", "--size", "24", "--out", str(out)])
     args.func(args)
-    sheet = data.read_image(out)
+    sheet = read_image(out)
     assert sheet.shape == (2 * 26 + 2, 3 * 26 + 2, 3)

@@ -1,13 +1,13 @@
 import numpy as np
 import pytest
 
-from hypergs_blender.cli import main
-from hypergs_blender.clip_io import load_clip
+from hypergs_blender.commands.cli import main
+from hypergs_blender.io.clips import load_clip
 from hypergs_blender.encode import Cancelled, EncodePlan, FloorEncoder, encode_frames, encode_video
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.metrics import psnr
 from hypergs_blender.render import render_frames
-from hypergs_blender.video import read_clip
+from hypergs_blender.io.frames import read_frames
 
 
 def test_encode_video_chunks_and_metadata(moving_video):
@@ -18,7 +18,7 @@ def test_encode_video_chunks_and_metadata(moving_video):
     assert (video.canvas_width, video.canvas_height, video.fps) == (64, 48, 12.0)
     assert calls == [(0, 12), (4, 12), (8, 12), (12, 12)]
     # the floor reproduces the frames roughly (a blurred version)
-    frames, _, _ = read_clip(moving_video)
+    frames, _, _ = read_frames(moving_video)
     assert psnr(render_frames(video, 64, 48), frames / 255.0).mean() > 18
 
 
@@ -30,7 +30,7 @@ def test_chunking_does_not_change_the_result(moving_video):
 
 
 def test_grid_tiles_cover_the_frame(moving_video):
-    frames, _, _ = read_clip(moving_video, 4)
+    frames, _, _ = read_frames(moving_video, 4)
     params = encode_frames(frames, FloorEncoder(canvas=16, clip_frames=4), 4 * 36, grid=2)
     assert params.shape == (4, 144, 8)
     # every tile's Gaussians stay in its quarter of the frame

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 import torch
 
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.gaussians import (GaussianVideo, covariance, grid_anchors, inverse_covariance, merge_tiles,
                                        render_inputs, stretch_params)
+from hypergs_blender.io.npz import load_npz, save_npz
 from hypergs_blender.raster import rasterize_reference
 
 
@@ -21,16 +23,16 @@ def random_params(t, n, seed=0, canvas=64):
 
 def test_save_load_round_trip(tmp_path):
     video = GaussianVideo(random_params(3, 10), 64, 48, fps=25.0, grid=(2, 2), source={"path": "x.mp4"})
-    video.save(tmp_path / "clip.npz")
-    back = GaussianVideo.load(tmp_path / "clip.npz")
+    save_npz(video, tmp_path / "clip.npz")
+    back = load_npz(tmp_path / "clip.npz")
     np.testing.assert_array_equal(back.params, video.params)
     assert (back.canvas_width, back.canvas_height, back.fps, back.grid, back.source) == (64, 48, 25.0, (2, 2), {"path": "x.mp4"})
 
 
 def test_load_rejects_other_files(tmp_path):
     (tmp_path / "bad.npz").write_text("not a zip")
-    with pytest.raises(ValueError, match="bad.npz"):
-        GaussianVideo.load(tmp_path / "bad.npz")
+    with pytest.raises(HyperGSError, match="bad.npz"):
+        load_npz(tmp_path / "bad.npz")
 
 
 def test_bad_shape_is_refused():

@@ -29,7 +29,7 @@ if __name__ == "__main__":  # run as a script from anywhere: the package is in t
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hypergs_blender.gaussians import GaussianVideo
-from hypergs_blender.hgs import _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
+from hypergs_blender.io.hgs import _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
 
 MAX_PEAK_BYTES = 400 << 20  # a clip's largest legal frame (2^20 Gaussians) decodes in less
 MAX_SECONDS = 10.0

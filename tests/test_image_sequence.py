@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from hypergs_blender.errors import HyperGSError, VideoError
-from hypergs_blender.image_sequence import (frame_path, is_image_sequence, iter_frames, linear_to_srgb, list_frames,
-                                            probe, read_image, srgb_to_linear, write_image)
+from hypergs_blender.colour import linear_to_srgb, srgb_to_linear
+from hypergs_blender.io.image_sequence import frame_path, is_image_sequence, iter_frames, list_frames, probe
+from hypergs_blender.io.images import read_image, write_image
 
 
 def frames_rgb(t=4, h=24, w=40, seed=0):

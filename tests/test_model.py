@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from hypergs_blender.lamb import Lamb
+from hypergs_blender.training.optim import Lamb
 from hypergs_blender.model import PRESETS, HyperGS, ModelConfig, anchor_inputs, apply_rope, count_parameters, rope_angles
-from hypergs_blender.regularizers import AdaptiveRegularizer, effective_rank
+from hypergs_blender.training.regularizers import AdaptiveRegularizer, effective_rank
 
 TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
 
@@ -94,8 +94,8 @@ def test_lamb_step_matches_hand_computation():
 
 
 def test_onnx_matches_torch(tmp_path):
-    pytest.importorskip("onnxruntime")
-    from hypergs_blender.network import OnnxEncoder, TorchEncoder, export_onnx
+    from hypergs_blender.network import OnnxEncoder, TorchEncoder
+    from hypergs_blender.training.export import export_onnx
     torch.manual_seed(0)
     model = HyperGS(ModelConfig(**TINY))
     with torch.no_grad():

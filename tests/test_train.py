@@ -5,10 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from hypergs_blender import train
+from hypergs_blender.commands import train as train_commands
+from hypergs_blender.render import render_torch
+from hypergs_blender.training import train
 from hypergs_blender.model import HyperGS, ModelConfig, anchor_inputs
-from hypergs_blender.regularizers import AdaptiveRegularizer
-from hypergs_blender.lamb import Lamb, parameter_groups
+from hypergs_blender.training.regularizers import AdaptiveRegularizer
+from hypergs_blender.training.optim import Lamb, parameter_groups
 
 TINY = dict(canvas=32, patch=8, clip_frames=2, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
 
@@ -38,7 +40,7 @@ def test_tiny_model_overfits_one_clip(parametrization):
     psnrs = []
     for step in range(150):
         params = model(frames, anchors, cell)
-        mse = torch.mean((train.render_params(params, 32) - frames) ** 2)
+        mse = torch.mean((render_torch(params, 32, 32, 32, 32) - frames) ** 2)
         loss = mse + reg(params[..., 2:4])[0]
         optimizer.zero_grad()
         loss.backward()
@@ -50,7 +52,7 @@ def test_tiny_model_overfits_one_clip(parametrization):
 
 def training_args(out, steps, minutes=None):
     parser = argparse.ArgumentParser()
-    train.add_commands(parser.add_subparsers())
+    train_commands.add_commands(parser.add_subparsers())
     argv = ["train", "--out", str(out), "--data", "procedural:1", "--steps", str(steps), "--batch", "2",
             "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000", "--checkpoint-every", "2",
             "--warmup", "2"] + ([] if minutes is None else ["--minutes", str(minutes)])

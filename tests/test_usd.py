@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hypergs_blender.gaussians import GaussianVideo
-from hypergs_blender.usd_io import PRIM_PATH, UsdError, export_usd, import_usd
+from hypergs_blender.io.usd import PRIM_PATH, UsdError, export_usd, import_usd
 
 
 def make_video(t=4, n=50, seed=0):
@@ -88,10 +88,10 @@ def test_usd_import_errors(tmp_path):
 
 
 def test_usd_cli_round_trip(tmp_path, capsys, monkeypatch):
-    from hypergs_blender import cli
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ["codec_cli"])  # only the commands under test
+    from hypergs_blender.commands import cli
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["clips"])  # only the commands under test
     main = cli.main
-    from hypergs_blender.hgs import load_hgs, save_hgs
+    from hypergs_blender.io.hgs import load_hgs, save_hgs
 
     video = make_video(t=3, n=30)
     save_hgs(video, tmp_path / "c.hgs", bits=8)

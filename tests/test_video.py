@@ -5,7 +5,8 @@ import pytest
 
 from hypergs_blender.errors import VideoError
 from conftest import write_video
-from hypergs_blender.video import iter_frames, probe, read_clip, resize_crop, sample_indices
+from hypergs_blender.io.frames import iter_frames, probe, read_frames, sample_indices
+from hypergs_blender.io.images import resize_crop
 
 
 @pytest.fixture
@@ -20,11 +21,11 @@ def clip(tmp_path):
 def test_probe_and_read(clip):
     info = probe(clip)
     assert (info.width, info.height, info.num_frames, info.fps) == (80, 48, 10, 12.0)
-    frames, _, indices = read_clip(clip, 4)
+    frames, _, indices = read_frames(clip, 4)
     assert frames.shape == (4, 48, 80, 3) and indices == [0, 3, 6, 9]
     # frame t has value 20 t (lossless encode)
     np.testing.assert_allclose(frames[:, 0, 0, 0], [0, 60, 120, 180], atol=2)
-    square, _, _ = read_clip(clip, 2, start=2, stop=5, size=32)
+    square, _, _ = read_frames(clip, 2, start=2, stop=5, size=32)
     assert square.shape == (2, 32, 32, 3)
 
 
@@ -60,7 +61,7 @@ def test_truncated_video(clip, tmp_path):
     path = tmp_path / "truncated.mp4"
     path.write_bytes(data[: len(data) // 3])
     with pytest.raises(VideoError, match="truncated.mp4"):
-        read_clip(path, 8)
+        read_frames(path, 8)
 
 
 def test_missing_file():

@@ -6,11 +6,11 @@ import textwrap
 
 import bpy
 
-from ..ops import linked
+from ..com import linked
+from ..com.mesh import linked_file
 from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
                              HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
                              HYPERGS_OT_reencode)
-from ..ops.scene import linked_file
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import HyperGSError
-from .gaussians import NUM_PARAMS, GaussianVideo
+from ..errors import HyperGSError
+from ..gaussians import NUM_PARAMS, GaussianVideo
 
 ROOT_PATH = "/GaussianVideo"
 PRIM_PATH = "/GaussianVideo/Gaussians"

@@ -1,14 +1,14 @@
 """Load and save GaussianVideo clips, choosing the format by file suffix:
   .hgs              compressed (codec.py / hgs.py); options: bits (8, 6, 4 or 8 values), group_size, mode
-  .npz              uncompressed float32 (GaussianVideo.save); options are ignored
-  .usd/.usda/.usdc  UsdGeomPoints with a time sample per frame (usd_io.py); option: start_frame
+  .npz              uncompressed float32 (npz.py); options are ignored
+  .usd/.usda/.usdc  UsdGeomPoints with a time sample per frame (usd.py); option: start_frame
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from .errors import HyperGSError
-from .gaussians import GaussianVideo
+from ..errors import HyperGSError
+from ..gaussians import GaussianVideo
 
 CLIP_SUFFIXES = (".hgs", ".npz", ".usd", ".usda", ".usdc")
 _SAVE_OPTIONS = {".hgs": {"bits", "group_size", "mode", "quantizer"}, ".npz": {"bits"},
@@ -35,12 +35,13 @@ def save_clip(video: GaussianVideo, path, **options) -> None:
         from .hgs import save_hgs
         save_hgs(video, path, **options)
     elif suffix == ".npz":
+        from .npz import save_npz
         try:
-            video.save(path)
+            save_npz(video, path)
         except OSError as e:
             raise HyperGSError(f"{path}: cannot write ({e.strerror})") from e
     else:
-        from .usd_io import export_usd
+        from .usd import export_usd
         export_usd(video, path, start_frame=options.get("start_frame", 1))
 
 
@@ -53,9 +54,7 @@ def load_clip(path) -> GaussianVideo:
         from .hgs import load_hgs
         return load_hgs(path)
     if suffix == ".usd":
-        from .usd_io import import_usd
+        from .usd import import_usd
         return import_usd(path)
-    try:
-        return GaussianVideo.load(path)
-    except ValueError as e:
-        raise HyperGSError(str(e)) from e
+    from .npz import load_npz
+    return load_npz(path)

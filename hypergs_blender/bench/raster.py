@@ -1,30 +1,17 @@
-"""Benchmarks: `hypergs bench <what> [--json]`.
-
-Adding a benchmark: write `bench_<what>(...) -> dict` and a `_<what>_cli(parser)` that adds its options
-and returns `args -> dict`, then add one line to BENCH_COMMANDS. `--json` and printing are shared.
-"""
+"""`hypergs bench raster`: rasterizer throughput of every path (numba kernels, the pure-torch patch
+renderer, the numpy-only path Blender runs, the dense reference)."""
 from __future__ import annotations
 
-import json
 import math
 import os
-import statistics
-import time
+
+from ..errors import HyperGSError
+from .common import timed
 
 
 def _timeit(fn, repeats: int, sync=None) -> float:
-    """Median wall time of fn() over `repeats` runs (after one warm-up run)."""
-    fn()
-    if sync:
-        sync()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        if sync:
-            sync()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    """Median seconds of fn() over `repeats` runs after one warm-up run."""
+    return timed(fn, repeats, warmup=True, sync=sync)[0]
 
 
 def realistic_gaussians(frames: int, n: int, width: int, height: int, seed: int = 0):
@@ -33,7 +20,7 @@ def realistic_gaussians(frames: int, n: int, width: int, height: int, seed: int 
     and uniform rotation, small additive colours. float32 numpy arrays."""
     import numpy as np
 
-    from .gaussians import NUM_PARAMS, render_inputs
+    from ..gaussians import NUM_PARAMS, render_inputs
 
     rng = np.random.default_rng(seed)
     sigma = 0.8 * math.sqrt(width * height / n)
@@ -54,8 +41,12 @@ def bench_raster(device: str = "cpu", batch: int = 32, sizes=(250, 1000, 3000), 
     dense reference at a small size for scale. Medians of `repeats` runs after a warm-up."""
     import torch
 
-    from .errors import HyperGSError
-    from .raster import numba_available, rasterize, rasterize_numpy, rasterize_reference
+    from ..raster import (
+        numba_available,
+        rasterize,
+        rasterize_numpy,
+        rasterize_reference,
+    )
 
     if device == "cuda" and not torch.cuda.is_available():
         raise HyperGSError("bench raster --device cuda: CUDA is not available to torch")
@@ -131,98 +122,3 @@ def bench_raster(device: str = "cpu", batch: int = 32, sizes=(250, 1000, 3000), 
         "forward_backward_fps": round(
             1 / _timeit(forward_backward_fn(arrays, 256, 256, rasterize_reference), 3, sync), 2)}
     return report
-
-
-def _raster_cli(parser):
-    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
-    return lambda args: bench_raster(device=args.device)
-
-
-def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), frames: int = 8, size: int = 256,
-                 grid: int = 1, repeats: int = 3, weights=None) -> dict:
-    """Encode throughput of the bundled network: one T-frame size x size clip per call, through the
-    whole encode path (tiling, resize to the canvas, forward, merge), for each Gaussian count."""
-    import numpy as np
-    import torch
-
-    from .encode import encode_frames
-    from .network import WEIGHTS_DIR, load_bundled_encoder
-
-    clip = np.random.default_rng(0).integers(0, 256, (frames, size, size, 3), dtype=np.uint8)
-    report = {"frames_per_clip": frames, "size": size, "grid": grid, "torch_threads": torch.get_num_threads(),
-              "device": "cpu"}
-    for backend in backends:
-        encoder = load_bundled_encoder(backend, weights or WEIGHTS_DIR, device="cpu")
-        for n in counts:
-            seconds = _timeit(lambda: encode_frames(clip, encoder, n, grid), repeats)
-            report[f"{backend}_N={n}"] = {"clips_per_s": round(1 / seconds, 3), "frames_per_s": round(frames / seconds, 2)}
-    return report
-
-
-def _encode_cli(parser):
-    parser.add_argument("--frames", type=int, default=8)
-    parser.add_argument("--size", type=int, default=256)
-    parser.add_argument("--grid", type=int, default=1)
-    parser.add_argument("--weights", default=None)
-    return lambda args: bench_encode(frames=args.frames, size=args.size, grid=args.grid, weights=args.weights)
-
-
-def _codec_cli(parser):
-    from .codec_cli import bench_codec_cli
-    return bench_codec_cli(parser)
-
-
-def _vs_fit_cli(parser):
-    from .bench_compare import vs_fit_cli
-    return vs_fit_cli(parser)
-
-
-def _vs_x265_cli(parser):
-    from .bench_compare import vs_x265_cli
-    return vs_x265_cli(parser)
-
-
-def _scale_cli(parser):
-    from .bench_compare import scale_cli
-    return scale_cli(parser)
-
-
-# name -> (help, function adding the options and returning `args -> report dict`)
-BENCH_COMMANDS = {
-    "raster": ("rasterizer frames/s: numba / torch paths, numpy-only path, dense reference", _raster_cli),
-    "encode": ("network encode clips/s and frames/s (torch and onnxruntime) for N in {250, 1000, 3000}", _encode_cli),
-    "codec": (".hgs rate-distortion at 8/6/4 bits next to x265 (bpp, PSNR, frames/s)", _codec_cli),
-    "vs-fit": ("feedforward vs feedforward + refine vs per-frame fitting: PSNR, s/frame, ratio at matched PSNR",
-               _vs_fit_cli),
-    "vs-x265": ("matched-quality pairs, .hgs vs x265: bpp, PSNR, SSIM, encode/decode frames/s", _vs_x265_cli),
-    "scale": ("a long (default synthetic 60 s 720p) video end to end: frames/s, peak memory, 1080p render",
-              _scale_cli),
-}
-
-
-def _print_report(report: dict, indent: int = 0) -> None:
-    for key, value in report.items():
-        if isinstance(value, dict):
-            print(" " * indent + f"{key}:")
-            _print_report(value, indent + 2)
-        else:
-            print(" " * indent + f"{key}: {value}")
-
-
-def add_commands(subparsers) -> None:
-    bench = subparsers.add_parser("bench", help="benchmarks")
-    kinds = bench.add_subparsers(dest="bench", required=True)
-    for name, (help_text, add_options) in BENCH_COMMANDS.items():
-        parser = kinds.add_parser(name, help=help_text, description=help_text)
-        parser.add_argument("--json", action="store_true", help="print the report as JSON")
-        run = add_options(parser)
-
-        def func(args, run=run):
-            report = run(args)
-            if args.json:
-                print(json.dumps(report, indent=2))
-            elif isinstance(report.get("table"), str):  # reports with a Markdown table print just that
-                print(report["table"])
-            else:
-                _print_report(report)
-        parser.set_defaults(func=func)

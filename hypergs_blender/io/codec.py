@@ -32,8 +32,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import HyperGSError
-from .gaussians import NUM_PARAMS
+from ..errors import HyperGSError
+from ..gaussians import NUM_PARAMS
 
 LINEAR, LOG, ANGLE = 0, 1, 2
 TRANSFORMS = (LINEAR, LINEAR, LOG, LOG, ANGLE, LINEAR, LINEAR, LINEAR)  # per parameter, fixed by the format

@@ -1,7 +1,7 @@
 """`hypergs train`: LAMB, cosine schedule, checkpoints with exact resume, periodic evaluation.
 
 The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on
-GPUs, gloo on CPUs): every rank draws different clips (data.make_batch is a pure function of
+GPUs, gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of
 (seed, step, rank)), rank 0 logs, evaluates and writes checkpoints.
 
 The run folder holds `checkpoint.pt` (written atomically every --checkpoint-every steps and at
@@ -22,34 +22,13 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
-from .lamb import Lamb, parameter_groups
-from .model import PRESETS, HyperGS, ModelConfig, anchor_inputs
-from .render import render_torch
+from ..io.frames import read_frames
+from ..model import PRESETS, HyperGS, ModelConfig, anchor_inputs
+from ..render import render_torch
+from . import data
+from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
-
-DEV_VIDEOS = Path(__file__).resolve().parents[1].parent / "shared" / "videos"
-
-
-def add_commands(subparsers) -> None:
-    p = subparsers.add_parser("train", help="train the HyperGS network")
-    p.add_argument("--out", default="runs/small", help="run folder (checkpoint, log); resumes from it")
-    p.add_argument("--preset", default="small", choices=sorted(PRESETS))
-    p.add_argument("--parametrization", choices=["local", "paper"], help="override the preset's")
-    p.add_argument("--data", default="procedural:0.5,photos:0.5", help="data.build_sources spec")
-    p.add_argument("--data-root", default="data")
-    p.add_argument("--steps", type=int, default=20000, help="total steps of the cosine schedule")
-    p.add_argument("--minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
-    p.add_argument("--batch", type=int, default=4, help="clips per step per process")
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--warmup", type=int, default=200)
-    p.add_argument("--min-lr-ratio", type=float, default=0.1)
-    p.add_argument("--gaussians", default="64:1024", help="N per frame, log-uniform in MIN:MAX per step")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--log-every", type=int, default=20)
-    p.add_argument("--eval-every", type=int, default=250)
-    p.add_argument("--checkpoint-every", type=int, default=100)
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    p.set_defaults(func=run)
+from .sources import make_batch
 
 
 def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float) -> float:
@@ -57,11 +36,6 @@ def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float)
         return base * (step + 1) / warmup
     t = min(1.0, (step - warmup) / max(1, total - warmup))
     return base * (min_ratio + (1 - min_ratio) * 0.5 * (1 + math.cos(math.pi * t)))
-
-
-def render_params(params: torch.Tensor, size: int) -> torch.Tensor:
-    """Differentiable render of [..., N, 8] params on the size x size canvas, at that size."""
-    return render_torch(params, size, size, size, size)
 
 
 def gaussians_for_step(spec: str, seed: int, step: int) -> int:
@@ -94,8 +68,7 @@ class Prefetcher:
 
 
 def run(args) -> None:
-    from . import data
-
+    """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
     distributed = "RANK" in os.environ
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -131,8 +104,8 @@ def run(args) -> None:
 
     sources = data.build_sources(args.data, args.data_root)
     size, frames_per_clip = cfg.canvas, cfg.clip_frames
-    prefetch = Prefetcher(lambda s: data.make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size))
-    evaluator = Evaluator(cfg, args.data_root) if rank == 0 else None
+    prefetch = Prefetcher(lambda s: make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size))
+    evaluator = Evaluator(cfg, args.data_root, args.eval_videos) if rank == 0 else None
     log = open(out / "log.jsonl", "a") if rank == 0 else None
     if rank == 0:
         print(f"training {cfg.parametrization} model, {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
@@ -164,7 +137,7 @@ def run(args) -> None:
         with amp:
             params = train_model(frames, anchors, cell)
         params = params.float()
-        render = render_params(params, size)
+        render = render_torch(params, size, size, size, size)
         mse = torch.mean((render - frames) ** 2)
         reg_loss, reg_stats = regularizer(params[..., 2:4])
         loss = mse + reg_loss
@@ -203,17 +176,15 @@ def run(args) -> None:
 
 
 class Evaluator:
-    """PSNR at the canvas size on fixed held-out clips (photos + procedural, never the dev videos
-    for training decisions) and, for reporting, on the dev videos when they are present."""
+    """PSNR at the canvas size on fixed held-out clips (photos + procedural) and, for reporting only
+    (never for training decisions), on the videos given with --eval-videos."""
 
-    def __init__(self, cfg: ModelConfig, data_root: str, counts=(250, 1000)):
-        from . import data
-        from .video import read_clip
+    def __init__(self, cfg: ModelConfig, data_root: str, videos=(), counts=(250, 1000)):
         self.cfg, self.counts = cfg, counts
         self.clips = {"val": data.validation_clips(data_root, cfg.clip_frames, cfg.canvas, 8)}
-        for path in sorted(DEV_VIDEOS.glob("*.mp4")):
-            frames, _, _ = read_clip(path, cfg.clip_frames, size=cfg.canvas)
-            self.clips[f"dev_{path.stem}"] = (frames[None] / 255.0).astype(np.float32)
+        for path in map(Path, videos):
+            frames, _, _ = read_frames(path, cfg.clip_frames, size=cfg.canvas)
+            self.clips[f"video_{path.stem}"] = (frames[None] / 255.0).astype(np.float32)
 
     @torch.no_grad()
     def __call__(self, model, device) -> dict:
@@ -224,6 +195,7 @@ class Evaluator:
                 n_canvas = max(16, round(n * (self.cfg.canvas / 256) ** 2))
                 anchors, cell = anchor_inputs(n_canvas, device)
                 frames = torch.from_numpy(clips).to(device)
-                render = render_params(model(frames, anchors, cell).float(), self.cfg.canvas)
+                c = self.cfg.canvas
+                render = render_torch(model(frames, anchors, cell).float(), c, c, c, c)
                 results[f"{name}_n{n}"] = round(psnr_db(float(torch.mean((render.clamp(0, 1) - frames) ** 2))), 3)
         return results

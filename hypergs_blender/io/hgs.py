@@ -36,8 +36,8 @@ from typing import Iterator
 import numpy as np
 
 from .codec import TRANSFORMS, CodecError, Quantizer, decode_group, encode_group
-from .errors import HyperGSError
-from .gaussians import NUM_PARAMS, GaussianVideo
+from ..errors import HyperGSError
+from ..gaussians import NUM_PARAMS, GaussianVideo
 
 MAGIC = b"\x89HGS\r\n\x1a\n"
 VERSION = 1

@@ -1,5 +1,5 @@
-"""Video input with PyAV: streamed decoding, frame ranges, uniform T-frame sampling, and the
-short-side resize + centre crop that maps any frame to the network's square canvas."""
+"""Video files with PyAV: probing and streamed decoding, with the short-side resize + centre crop
+done while converting each frame to RGB. `frames.py` dispatches between this and image sequences."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,13 +8,12 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import VideoError
-
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
+from ..errors import VideoError
 
 
 @dataclass(frozen=True)
 class VideoInfo:
+    """What `probe` tells of a video or an image sequence."""
     path: str
     width: int
     height: int
@@ -41,13 +40,8 @@ def _open(path):
 
 
 def probe(path) -> VideoInfo:
-    """Size, frame rate and frame count. Counts by decoding when the container does not say.
-    Image sequences (a frame-number pattern, a folder, one file of the sequence) go to OpenImageIO."""
+    """Size, frame rate and frame count. Counts by decoding when the container does not say."""
     import av
-
-    from . import image_sequence
-    if image_sequence.is_image_sequence(path):
-        return image_sequence.probe(path)
 
     container, stream = _open(path)
     with container:
@@ -64,16 +58,6 @@ def probe(path) -> VideoInfo:
     return VideoInfo(str(path), width, height, fps, count)
 
 
-def sample_indices(num_available: int, num_frames: int | None, start: int = 0, stop: int | None = None) -> list[int]:
-    """Frame indices in [start, stop): all of them, or `num_frames` spread uniformly."""
-    stop = num_available if stop is None else min(stop, num_available)
-    if not 0 <= start < stop:
-        raise VideoError(f"empty frame range [{start}, {stop}) of a {num_available}-frame video")
-    if num_frames is None or num_frames >= stop - start:
-        return list(range(start, stop))
-    return np.round(np.linspace(start, stop - 1, num_frames)).astype(int).tolist()
-
-
 def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
     """Yield (index, frame) with frame uint8 [H, W, 3] RGB, decoding one frame at a time.
 
@@ -82,10 +66,6 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
     """
     import av
 
-    from . import image_sequence
-    if image_sequence.is_image_sequence(path):
-        yield from image_sequence.iter_frames(path, indices, size)
-        return
     wanted = None if indices is None else sorted(set(indices))
     container, stream = _open(path)
     with container:
@@ -115,30 +95,3 @@ def to_canvas(frame, size: int | None) -> np.ndarray:
     rgb = frame.to_ndarray(format="rgb24", width=rw, height=rh, interpolation="AREA")
     y0, x0 = (rh - size) // 2, (rw - size) // 2
     return np.ascontiguousarray(rgb[y0:y0 + size, x0:x0 + size])
-
-
-def resize_crop(image: np.ndarray, size: int) -> np.ndarray:
-    """The same short-side resize + centre crop for an RGB uint8 array (e.g. a ground-truth frame)."""
-    import av
-
-    frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
-    return to_canvas(frame, size)
-
-
-def read_clip(path, num_frames: int | None = None, start: int = 0, stop: int | None = None,
-              size: int | None = None) -> tuple[np.ndarray, VideoInfo, list[int]]:
-    """Decode `num_frames` uniformly sampled frames of [start, stop) as uint8 [T, H, W, 3]."""
-    info = probe(path)
-    indices = sample_indices(info.num_frames, num_frames, start, stop)
-    frames = np.stack([f for _, f in iter_frames(path, indices, size)])
-    return frames, info, indices
-
-
-def resize_exact(image: np.ndarray, width: int, height: int) -> np.ndarray:
-    """RGB uint8 array resized to exactly width x height (area filter; aspect not kept)."""
-    import av
-
-    if image.shape[1] == width and image.shape[0] == height:
-        return image
-    frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
-    return frame.to_ndarray(format="rgb24", width=width, height=height, interpolation="AREA")

@@ -3,7 +3,7 @@
 docs/NAME.png, plus docs/bench/tables.md with every report's Markdown table (machine and date in
 each table's first line).
 
-    python tools/make_plots.py [--bench docs/bench] [--out docs]
+    hypergs bench plots [--bench docs/bench] [--out docs]
 
 - vs-fit: PSNR against encode seconds per frame (log), one panel per size: per-frame fitting from
   random at each iteration count (circles, solid), the feedforward prediction (star) and
@@ -15,12 +15,8 @@ Reports of other kinds (no "bench" key, e.g. `bench codec -o`) are skipped with 
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _subtitle(report: dict) -> str:
@@ -151,24 +147,8 @@ def make_plots(bench_dir, out_dir, log=print) -> list[Path]:
             tables.append(f"## {TITLES[kind]} (`{path.name}`, plot `{png.name}`)\n\n{report['table']}\n")
     if tables:
         md = bench_dir / "tables.md"
-        md.write_text("# Benchmark tables\n\nWritten by tools/make_plots.py from the JSON reports beside this file.\n\n"
+        md.write_text("# Benchmark tables\n\nWritten by `hypergs bench plots` from the JSON reports beside this file.\n\n"
                       + "\n".join(tables))
         written.append(md)
         log(f"tables -> {md}")
     return written
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), help="folder of the JSON reports")
-    parser.add_argument("--out", default=str(ROOT / "docs"), help="folder for the PNGs")
-    args = parser.parse_args(argv)
-    written = make_plots(args.bench, args.out)
-    if not written:
-        print(f"no vs-fit / vs-x265 / scale reports in {args.bench}", file=sys.stderr)
-        return 1
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

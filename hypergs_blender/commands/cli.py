@@ -6,16 +6,16 @@ import argparse
 import importlib
 import sys
 
-from .errors import HyperGSError
+from ..errors import HyperGSError
 
-COMMAND_MODULES = ["encode", "evaluate", "train", "network", "fit", "bench", "codec_cli", "data"]
+COMMAND_MODULES = ["encode", "evaluate", "fit", "train", "data", "clips", "bench", "build"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hypergs", description="HyperGS: videos to editable 2D Gaussians in one forward pass.")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
-        importlib.import_module(f"hypergs_blender.{name}").add_commands(subparsers)
+        importlib.import_module(f"{__package__}.{name}").add_commands(subparsers)
     return parser
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.hgs import HgsError, HgsReader
+from ..hypergs_blender.io.hgs import HgsError, HgsReader
 
 MAX_OPEN = 8  # files kept decoded-ready; the least recently used is dropped first
 

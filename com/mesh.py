@@ -1,0 +1,100 @@
+"""A clip's mesh data, shared by the operators (ops/) and the render engine (engine/): writing and
+reading its points' attributes (see hypergs_blender/points.py for what they mean), the `frame`
+attribute, the outline mesh of a linked clip, and the path of a clip's linked file.
+
+One mesh per clip: its vertices are the Gaussians of every frame (position on the image plane, and
+point attributes `scale`, `rotation`, `color`, `frame`); a linked clip's mesh is just the image
+plane's outline (4 vertices, 4 edges), its Gaussians live in the .hgs file (linked.py).
+"""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..hypergs_blender.errors import HyperGSError
+from ..hypergs_blender.gaussians import GaussianVideo
+from ..hypergs_blender.points import video_to_points
+
+# attribute -> (components wanted, {data_type: (foreach key, components stored)})
+_ATTRIBUTES = {
+    "scale": (2, {"FLOAT2": ("vector", 2), "FLOAT_VECTOR": ("vector", 3)}),
+    "rotation": (1, {"FLOAT": ("value", 1)}),
+    "color": (3, {"FLOAT_COLOR": ("color", 4), "BYTE_COLOR": ("color", 4), "FLOAT_VECTOR": ("vector", 3)}),
+}
+
+
+def _read(attribute, n: int, key: str, stored: int) -> np.ndarray:
+    out = np.empty(n * stored, np.float32)
+    attribute.data.foreach_get(key, out)
+    return out.reshape(n, stored)
+
+
+def read_points(mesh) -> dict | None:
+    """position [M, 3], scale [M, 2], rotation [M], color [M, 3] float32 of a mesh's points, or None
+    when an attribute is missing or of a kind we cannot read (e.g. a modifier removed it)."""
+    n = len(mesh.vertices)
+    out = {"position": _read(mesh.attributes["position"], n, "vector", 3)} if n else {
+        "position": np.zeros((0, 3), np.float32)}
+    for name, (wanted, kinds) in _ATTRIBUTES.items():
+        attribute = mesh.attributes.get(name)
+        if attribute is None or attribute.domain != "POINT" or attribute.data_type not in kinds:
+            return None
+        key, stored = kinds[attribute.data_type]
+        values = _read(attribute, n, key, stored)[:, :wanted] if n else np.zeros((0, wanted), np.float32)
+        out[name] = values[:, 0] if wanted == 1 else values
+    return out
+
+
+def write_points(mesh, points: dict) -> None:
+    """Fill an empty mesh with vertices carrying the clip's point attributes (float32, foreach_set)."""
+    n = len(points["position"])
+    mesh.vertices.add(n)
+    mesh.attributes["position"].data.foreach_set("vector", points["position"].ravel())
+    for name, kind, key in (("scale", "FLOAT2", "vector"), ("rotation", "FLOAT", "value"),
+                            ("color", "FLOAT_COLOR", "color"), ("frame", "INT", "value")):
+        attribute = mesh.attributes.new(name, kind, "POINT")
+        attribute.data.foreach_set(key, np.ascontiguousarray(points[name]).ravel())
+    mesh.update()
+    try:  # make `color` the attribute that Mesh > Set Attribute and the colour display act on
+        mesh.attributes.active_color = mesh.attributes["color"]
+        mesh.attributes.active = mesh.attributes["color"]
+    except (AttributeError, TypeError, KeyError):
+        pass
+
+
+def new_clip_mesh(name: str, video: GaussianVideo):
+    mesh = bpy.data.meshes.new(name)
+    write_points(mesh, video_to_points(video))  # a padded clip (see points_to_video) without its padding
+    return mesh
+
+
+def outline(canvas_width: int, canvas_height: int) -> np.ndarray:
+    aspect = canvas_width / max(1, canvas_height)
+    return np.array([[-aspect, -1, 0], [aspect, -1, 0], [aspect, 1, 0], [-aspect, 1, 0]], np.float32)
+
+
+def new_linked_mesh(name: str, canvas_width: int, canvas_height: int):
+    """A linked clip's mesh: the image plane's outline (4 vertices, 4 edges), no Gaussians."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(outline(canvas_width, canvas_height).tolist(), [(0, 1), (1, 2), (2, 3), (3, 0)], [])
+    mesh.update()
+    return mesh
+
+
+def read_clip_points(mesh) -> dict:
+    """Every frame's points of an embedded clip's (original, Object Mode) mesh: position, scale,
+    rotation, color (RGB), frame. Raises HyperGSError when an attribute is missing or unreadable."""
+    points = read_points(mesh)
+    frame = mesh.attributes.get("frame")
+    if points is None or frame is None or frame.domain != "POINT" or frame.data_type not in ("INT", "FLOAT"):
+        raise HyperGSError(f"'{mesh.name}' lacks the clip's point attributes (scale, rotation, color, frame)")
+    values = np.empty(len(mesh.vertices), np.int32 if frame.data_type == "INT" else np.float32)
+    frame.data.foreach_get("value", values)
+    points["frame"] = np.floor(values + 0.5).astype(np.int64) if values.dtype != np.int32 else values
+    return points
+
+
+def linked_file(obj) -> str:
+    """Absolute path of a linked clip's file ('' when none is set)."""
+    path = obj.hypergs.linked_path
+    return bpy.path.abspath(path, library=obj.library) if path else ""

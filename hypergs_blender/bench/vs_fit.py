@@ -1,0 +1,266 @@
+"""`hypergs bench vs-fit`: the encoder's feedforward prediction, the prediction + K refine steps
+(least-squares colours, then K - 1 warm-started Adam steps), and per-frame fitting from random initial
+values at a ladder of iteration counts, on the same frames; PSNR and seconds per frame, and the
+encode-time ratio (fitting / ours) at matched PSNR."""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..encode import encode_frames, split_count
+from ..network import resolve_encoder
+from ..refine import REFINE_LR, fit, random_init, refine_params
+from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, auto_grid, load_frames, machine_report, parse_size, psnr_of, render,
+                     resolve_device, say, sync)
+
+DEFAULT_REFINE_STEPS = (1, 10, 50, 200)
+DEFAULT_FIT_ITERS = (10, 30, 100, 300, 1000, 3000, 10000)  # the issue's rungs, plus two cheap ones below
+DEFAULT_FIT_BUDGET = 30.0  # CLI: seconds of fitting per (video, size, N) on 2 CPU cores; 0 = no limit
+DEFAULT_SIZES = ("256", "native")
+
+
+def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_STEPS, device: str = "cpu"):
+    """refine.refine_params(params, frames, K) for every K in `steps`, from one run of max(steps) steps:
+    refinement keeps its step size constant, so the state after K steps of the long run is
+    refine_params(K). The hook that copies each rung's params out is not timed.
+    Returns [(K, refined params [T, N, 8] numpy, seconds)] in the order of `steps`."""
+    wanted, taken, overhead = set(steps), {}, 0.0
+    started = time.perf_counter()
+
+    def on_step(k, params_fn):
+        nonlocal overhead
+        if k in wanted:
+            sync(device)
+            now = time.perf_counter()
+            taken[k] = (params_fn().detach().cpu().numpy(), now - started - overhead)
+            overhead += time.perf_counter() - now
+
+    refine_params(params, frames, max(steps), on_step=on_step, device=device)
+    return [(k, *taken[k]) for k in steps]
+
+
+def fit_from_random(frames: np.ndarray, n: int, iters: int, device: str = "cpu", seed: int = 0):
+    """Per-frame fitting from refine.random_init for `iters` Adam steps (refine.fit's cosine schedule).
+    Returns (params numpy, seconds) for all frames at once (they are fitted as one batch)."""
+    import torch
+
+    t, h, w = frames.shape[:3]
+    target = torch.from_numpy(frames).to(device).float() / 255
+    init = torch.from_numpy(random_init(t, n, w, h, seed)).to(device)
+    sync(device)
+    started = time.perf_counter()
+    params = fit(target, init, iters)
+    sync(device)
+    seconds = time.perf_counter() - started
+    return params.detach().cpu().numpy(), seconds
+
+
+def matched_ratio(our_psnr: float, our_seconds: float, fit_points) -> dict:
+    """Fitting time to reach `our_psnr`, and its ratio to `our_seconds`, from fitting's measured
+    (seconds, psnr) points (per frame, any order; points of skipped rungs left out).
+
+    Between two rungs the time is interpolated linearly in log(seconds) against PSNR, from the
+    first rung at or above our PSNR. bound: '=' interpolated; '<=' fitting's cheapest rung already
+    reaches our PSNR (the ratio is at most the one given); '>=' no rung reaches it (at least)."""
+    points = sorted((float(s), float(p)) for s, p in fit_points)
+    if not points or our_seconds <= 0:
+        return {"fit_seconds": None, "ratio": None, "bound": None}
+    if points[0][1] >= our_psnr:
+        fit_seconds, bound = points[0][0], "<="
+    else:
+        for (s0, p0), (s1, p1) in zip(points, points[1:]):
+            if p1 >= our_psnr:
+                a = (our_psnr - p0) / (p1 - p0) if p1 > p0 else 1.0
+                fit_seconds, bound = math.exp(math.log(s0) + a * (math.log(s1) - math.log(s0))), "="
+                break
+        else:
+            fit_seconds, bound = points[-1][0], ">="
+    return {"fit_seconds": fit_seconds, "ratio": fit_seconds / our_seconds, "bound": bound}
+
+
+def warm_up(frames: np.ndarray, encoder, device: str) -> None:
+    """Compile/initialise every code path once (numba JIT, torch kernels) on tiny work."""
+    small = frames[:1, :32, :32]
+    params = encode_frames(small, encoder, 16)
+    refine_ladder(params, small, (2,), device)
+    fit_from_random(small, 16, 2, device)
+    render(params, 32, 32, device)
+
+
+def _feedforward(frames: np.ndarray, encoder, n: int, grid: int, device: str):
+    """(seconds per frame, params) of encode_frames: the median of 3 runs when one takes under 2 s
+    (short timings are noisy), else the one run."""
+    def run():
+        sync(device)
+        started = time.perf_counter()
+        out = encode_frames(frames, encoder, n, grid)
+        sync(device)
+        return time.perf_counter() - started, out
+    seconds, params = run()
+    if seconds < 2.0:
+        seconds = float(np.median([seconds, run()[0], run()[0]]))
+    return seconds / len(frames), params
+
+
+def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFINE_STEPS, fit_iters=DEFAULT_FIT_ITERS,
+                 sizes=DEFAULT_SIZES, frames: int = 4, start: int = 0, encoder="network", backend: str = "auto",
+                 weights=None, device: str = "auto", grid: int | None = None, fit_budget: float | None = None,
+                 fit_all: bool = False, progress=None) -> dict:
+    """Feedforward vs feedforward + refine vs fitting from random, on the same consecutive frames.
+
+    Per video, size ('256' or 'native': the video's own W x H, with a G x G patch grid, G = `grid` or
+    the one whose tiles come closest to the encoder's canvas) and Gaussian count N (rounded down to a
+    multiple of G^2): PSNR and seconds per frame of each method; for fitting, the rungs of
+    `fit_iters` in order, each a separate run from the same random start (cosine schedule over its
+    own length). Rungs stop early (marked skipped) once one reaches the best PSNR of ours (every
+    ratio can then be interpolated) unless fit_all, and when the next rung would take fitting past
+    `fit_budget` seconds for this (video, size, N), predicted from the last rung's time per step."""
+    device = resolve_device(device)
+    if isinstance(encoder, str):
+        encoder = resolve_encoder(encoder, backend, weights, device)
+    encoder_name = encoder.name
+    refine_steps, fit_iters = sorted(set(refine_steps)), sorted(set(fit_iters))
+    report = {"bench": "vs-fit", "machine": machine_report(device),
+              "settings": {"gaussians": list(gaussians), "refine_steps": refine_steps, "fit_iters": fit_iters,
+                           "sizes": [str(s) for s in sizes], "frames": frames, "start": start,
+                           "encoder": encoder_name, "grid": grid, "fit_budget_s": fit_budget, "fit_all": fit_all,
+                           "refine_lr": REFINE_LR, "timing": "seconds per frame, wall clock, all frames as one batch"},
+              "videos": []}
+    warmed = False
+    for path in videos:
+        entry = {"path": str(path), "sizes": []}
+        for size_text in sizes:
+            size = parse_size(size_text)
+            clip, info, indices = load_frames(path, frames, size, start)
+            t, h, w = clip.shape[:3]
+            g = 1 if size is not None else (grid or auto_grid(w, h, encoder.canvas))
+            if not warmed:
+                warm_up(clip, encoder, device)
+                warmed = True
+            block = {"size": "native" if size is None else str(size), "width": w, "height": h, "grid": g,
+                     "frames": t, "frame_indices": indices, "rows": []}
+            for n_asked in gaussians:
+                n = split_count(n_asked, g)
+                label = f"{Path(path).name} {w}x{h} N={n}"
+                say(progress, f"{label}: feedforward")
+                encode_frames(clip[:1], encoder, n, g)  # warm-up at this N (shapes)
+                ff_seconds, params = _feedforward(clip, encoder, n, g, device)
+                ff_psnr = psnr_of(render(params, w, h, device), clip)
+                row = {"n_requested": n_asked, "n": n,
+                       "feedforward": {"seconds": ff_seconds, "psnr": float(np.mean(ff_psnr)),
+                                       "psnr_per_frame": [round(float(q), 3) for q in ff_psnr]},
+                       "refine": [], "fit": [], "matched": []}
+                if refine_steps:
+                    say(progress, f"{label}: refine {refine_steps}")
+                    for k, refined, seconds in refine_ladder(params, clip, refine_steps, device):
+                        q = float(np.mean(psnr_of(render(refined, w, h, device), clip)))
+                        row["refine"].append({"k": k, "seconds": ff_seconds + seconds / t, "refine_seconds": seconds / t,
+                                              "psnr": q, "gain_db": q - row["feedforward"]["psnr"]})
+                ours = [("feedforward", row["feedforward"]["psnr"], ff_seconds)]
+                ours += [(f"refine {r['k']}", r["psnr"], r["seconds"]) for r in row["refine"]]
+                target_psnr = max(p for _, p, _ in ours)
+                spent, per_step, stop = 0.0, None, None
+                for iters in fit_iters:
+                    if stop is None and fit_budget is not None and per_step is not None \
+                            and spent + per_step * iters > fit_budget:
+                        stop = "budget"
+                    if stop is not None:
+                        row["fit"].append({"iters": iters, "skipped": stop})
+                        continue
+                    say(progress, f"{label}: fitting {iters} iterations")
+                    fitted, seconds = fit_from_random(clip, n, iters, device)
+                    q = float(np.mean(psnr_of(render(fitted, w, h, device), clip)))
+                    row["fit"].append({"iters": iters, "seconds": seconds / t, "psnr": q})
+                    spent += seconds
+                    per_step = seconds / iters
+                    if not fit_all and q >= target_psnr:
+                        stop = "reached"
+                points = [(f["seconds"], f["psnr"]) for f in row["fit"] if "psnr" in f]
+                for method, q, seconds in ours:
+                    row["matched"].append({"method": method, "psnr": q, "seconds": seconds,
+                                           **matched_ratio(q, seconds, points)})
+                block["rows"].append(row)
+            entry["sizes"].append(block)
+        report["videos"].append(entry)
+    report["summary"] = summarize_vs_fit(report)
+    report["table"] = format_vs_fit_table(report)
+    return report
+
+
+def summarize_vs_fit(report: dict) -> list[dict]:
+    """Per (size, N): means over the videos of each method's PSNR and seconds per frame (fitting rungs
+    measured on every video only), and the matched ratios recomputed on those mean curves."""
+    groups: dict = {}
+    for video in report["videos"]:
+        for block in video["sizes"]:
+            for row in block["rows"]:
+                groups.setdefault((block["size"], row["n_requested"]), []).append((block, row))
+    out = []
+    for (size, n_requested), items in groups.items():
+        rows = [r for _, r in items]
+
+        def mean(values):
+            return float(np.mean(values))
+        ff = {"psnr": mean([r["feedforward"]["psnr"] for r in rows]),
+              "seconds": mean([r["feedforward"]["seconds"] for r in rows])}
+        refine = []
+        for i, first in enumerate(rows[0]["refine"]):
+            refine.append({"k": first["k"], "psnr": mean([r["refine"][i]["psnr"] for r in rows]),
+                           "seconds": mean([r["refine"][i]["seconds"] for r in rows]),
+                           "gain_db": mean([r["refine"][i]["gain_db"] for r in rows])})
+        fit = []
+        for i, first in enumerate(rows[0]["fit"]):
+            rungs = [r["fit"][i] for r in rows]
+            if all("psnr" in f for f in rungs):
+                fit.append({"iters": first["iters"], "psnr": mean([f["psnr"] for f in rungs]),
+                            "seconds": mean([f["seconds"] for f in rungs])})
+        points = [(f["seconds"], f["psnr"]) for f in fit]
+        matched = [{"method": "feedforward", "psnr": ff["psnr"], "seconds": ff["seconds"],
+                    **matched_ratio(ff["psnr"], ff["seconds"], points)}]
+        matched += [{"method": f"refine {r['k']}", "psnr": r["psnr"], "seconds": r["seconds"],
+                     **matched_ratio(r["psnr"], r["seconds"], points)} for r in refine]
+        skipped = sorted({(f["iters"], f["skipped"]) for r in rows for f in r["fit"] if "skipped" in f})
+        out.append({"size": size, "n_requested": n_requested, "n": sorted({r["n"] for r in rows}),
+                    "fit_skipped": [{"iters": i, "reason": why} for i, why in skipped],
+                    "resolution": sorted({f"{b['width']}x{b['height']}" for b, _ in items}),
+                    "grid": sorted({b["grid"] for b, _ in items}), "videos": len(rows),
+                    "feedforward": ff, "refine": refine, "fit": fit, "matched": matched})
+    return out
+
+
+def ratio_text(m: dict) -> str:
+    if m.get("ratio") is None:
+        return "n/a"
+    r = m["ratio"]
+    text = f"{r:.3g}" if r < 1000 else f"{r:.2e}"
+    return BOUND_TEXT[m["bound"]] + text + "×"
+
+
+def format_vs_fit_table(report: dict) -> str:
+    """Markdown: per size and N (means over the videos), each method's PSNR and seconds per frame and
+    the fitting time at the same PSNR; then fitting's rungs."""
+    m, s = report["machine"], report["settings"]
+    lines = [f"{m['date'][:10]}, {m['cpu']} ({m['cores']} cores{', ' + m['gpu'] if m.get('gpu') else ''}; "
+             f"device {m['device']}, torch {m.get('torch_threads', '?')} threads, load {m.get('load_average_1m', '?')}). "
+             f"Encoder `{s['encoder']}`, {s['frames']} consecutive frames per video from frame {s['start']}, "
+             f"{len(report['videos'])} video(s); times are seconds per frame.", "",
+             "| size | N | method | PSNR dB | s/frame | fitting s/frame at this PSNR | fitting / ours |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for g in report["summary"]:
+        n = "/".join(str(v) for v in g["n"])
+        size = f"{g['size']} ({', '.join(g['resolution'])}, grid {'/'.join(str(v) for v in g['grid'])})"
+        for mt in g["matched"]:
+            fit_s = "n/a" if mt["fit_seconds"] is None else \
+                {"=": "", "<=": "≤ ", ">=": "> "}[mt["bound"]] + f"{mt['fit_seconds']:.3g}"
+            lines.append(f"| {size} | {n} | {mt['method']} | {mt['psnr']:.2f} | {mt['seconds']:.4g} | {fit_s} | "
+                         f"{ratio_text(mt)} |")
+        for f in g["fit"]:
+            lines.append(f"| {size} | {n} | fit {f['iters']} it | {f['psnr']:.2f} | {f['seconds']:.4g} | | |")
+        for reason, why in (("reached", "reached ours' best PSNR at fewer iterations"), ("budget", "over --fit-budget")):
+            its = [str(f["iters"]) for f in g["fit_skipped"] if f["reason"] == reason]
+            if its:
+                lines.append(f"| {size} | {n} | fit {', '.join(its)} it | skipped on some or all videos: {why} | | | |")
+    return "\n".join(lines)

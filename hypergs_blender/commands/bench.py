@@ -1,0 +1,212 @@
+"""`hypergs bench <what> [--json]`: the benchmarks of bench/ on the command line.
+
+Adding a benchmark: write `bench_<what>(...) -> dict` in bench/, and here a `_<what>(parser)` that adds
+its options and returns `args -> report dict`, then add one line to BENCH_COMMANDS. `--json` and
+printing are shared; reports with a Markdown table under "table" print just that.
+"""
+from __future__ import annotations
+
+import json
+import sys
+
+from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
+from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES
+from ..network import BACKENDS
+
+
+def _bench_options(parser, default: str = "network") -> None:
+    parser.add_argument("--encoder", default=default, choices=["network", "floor"],
+                        help="the bundled network, or the grid floor (no learning)")
+    parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    parser.add_argument("--weights", default=None, help="folder with <name>.json/.safetensors/.onnx")
+    parser.add_argument("--device", default="auto", help="auto (cuda when available), cpu, cuda")
+    parser.add_argument("-o", "--output", default=None, help="also write the JSON report here")
+
+
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _raster(parser):
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+
+    def run(args):
+        from ..bench.raster import bench_raster
+        return bench_raster(device=args.device)
+    return run
+
+
+def _encode(parser):
+    parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--size", type=int, default=256)
+    parser.add_argument("--grid", type=int, default=1)
+    parser.add_argument("--weights", default=None)
+
+    def run(args):
+        from ..bench.encode import bench_encode
+        return bench_encode(frames=args.frames, size=args.size, grid=args.grid, weights=args.weights)
+    return run
+
+
+def _codec(parser):
+    parser.add_argument("videos", nargs="+")
+    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
+    parser.add_argument("--crf", type=int, nargs="+", default=list(DEFAULT_CRFS))
+    parser.add_argument("--size", type=int, default=256, help="square frame size (short-side resize + centre crop)")
+    parser.add_argument("--frames", type=int, default=None, help="frames sampled uniformly (default: all)")
+    parser.add_argument("--codec", default="libx265", help="FFmpeg reference encoder (libx264 when libx265 is missing)")
+    parser.add_argument("--preset", default="medium")
+    parser.add_argument("--group-size", type=int, default=16)
+    parser.add_argument("--position-bits", type=int, default=10,
+                        help="also rows with the means at this many bits (0: none)")
+    _bench_options(parser)
+
+    def run(args) -> dict:
+        from ..bench.codec import bench_codec, format_codec_table
+        from ..network import resolve_encoder
+        encoder = resolve_encoder(args.encoder, args.backend, args.weights, None if args.device == "auto" else args.device)
+        report = bench_codec(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames, encoder,
+                             args.codec, args.preset, args.group_size, args.position_bits or None, progress=_progress)
+        report["table"] = format_codec_table(report)
+        return write_report(report, args.output)
+    return run
+
+
+def _vs_fit(parser):
+    parser.add_argument("videos", nargs="+")
+    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("--refine-steps", type=int, nargs="*", default=list(DEFAULT_REFINE_STEPS),
+                        help="K values for feedforward + refine (1: least-squares colours only)")
+    parser.add_argument("--fit-iters", type=int, nargs="+", default=list(DEFAULT_FIT_ITERS),
+                        help="fitting-from-random rungs (iterations), each its own run")
+    parser.add_argument("--sizes", nargs="+", default=list(DEFAULT_SIZES),
+                        help="square sizes (short-side resize + crop) and/or 'native' (own W x H, patch grid)")
+    parser.add_argument("--frames", type=int, default=4, help="consecutive frames per video")
+    parser.add_argument("--start", type=int, default=0, help="first frame")
+    parser.add_argument("--grid", type=int, default=None, help="patch grid at native size (default: tiles ~ canvas)")
+    parser.add_argument("--fit-budget", type=float, default=DEFAULT_FIT_BUDGET,
+                        help="seconds of fitting per (video, size, N): rungs predicted to exceed it are skipped "
+                             f"(default {DEFAULT_FIT_BUDGET:g}; 0: no limit)")
+    parser.add_argument("--fit-all", action="store_true",
+                        help="run every rung (default: stop once fitting reaches ours' best PSNR)")
+    _bench_options(parser)
+
+    def run(args) -> dict:
+        from ..bench.vs_fit import bench_vs_fit
+        return write_report(bench_vs_fit(args.videos, args.gaussians, args.refine_steps, args.fit_iters, args.sizes,
+                                   args.frames, args.start, args.encoder, args.backend, args.weights, args.device,
+                                   args.grid, args.fit_budget or None, args.fit_all, progress=_progress), args.output)
+    return run
+
+
+def _vs_x265(parser):
+    parser.add_argument("videos", nargs="+")
+    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
+    parser.add_argument("--crf", type=int, nargs="+", default=list(DEFAULT_CRFS))
+    parser.add_argument("--refine-steps", type=int, nargs="+", default=[0],
+                        help="rows of ours at these refine K (0: the feedforward prediction)")
+    parser.add_argument("--sizes", "--size", dest="size", default="256",
+                        help="square size (short-side resize + crop) or 'native' (own W x H, patch grid)")
+    parser.add_argument("--frames", type=int, default=24, help="consecutive frames per video (0: all)")
+    parser.add_argument("--start", type=int, default=0)
+    parser.add_argument("--grid", type=int, default=None)
+    parser.add_argument("--codec", default="libx265")
+    parser.add_argument("--preset", default="medium")
+    parser.add_argument("--group-size", type=int, default=16)
+    parser.add_argument("--position-bits", type=int, default=10,
+                        help="bits of the means where --bits is lower (0: every parameter at --bits)")
+    _bench_options(parser)
+
+    def run(args) -> dict:
+        from ..bench.vs_x265 import bench_vs_x265
+        return write_report(bench_vs_x265(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames or None,
+                                    args.start, args.refine_steps, args.encoder, args.backend, args.weights,
+                                    args.device, args.grid, args.codec, args.preset, args.group_size,
+                                    position_bits=args.position_bits or None, progress=_progress), args.output)
+    return run
+
+
+def _scale(parser):
+    parser.add_argument("video", nargs="?", default=None, help="a video (default: a synthetic pan, made in a temp dir)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="length of the synthetic video")
+    parser.add_argument("--resolution", default="1280x720", help="W x H of the synthetic video")
+    parser.add_argument("--fps", type=int, default=24)
+    parser.add_argument("--gaussians", type=int, default=1000)
+    parser.add_argument("--grid", type=int, default=1)
+    parser.add_argument("--chunk-clips", type=int, default=4)
+    parser.add_argument("--refine", type=int, default=0)
+    parser.add_argument("--bits", type=int, default=8, choices=[4, 6, 8])
+    parser.add_argument("--render", default="1920x1080", help="render size")
+    parser.add_argument("--render-frames", type=int, default=48, help="frames rendered (0: all)")
+    parser.add_argument("--keep", default=None, help="folder to keep the video and the .hgs in")
+    parser.add_argument("--also-encode-video", action="store_true",
+                        help="also measure `hypergs encode`'s path (encode_video holds the clip, then save_clip)")
+    _bench_options(parser)
+
+    def run(args) -> dict:
+        w, h = (int(v) for v in args.resolution.lower().split("x"))
+        rw, rh = (int(v) for v in args.render.lower().split("x"))
+        from ..bench.scale import bench_scale
+        return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.grid, args.chunk_clips,
+                                  args.refine, args.bits, rw, rh, args.render_frames or None, 8, args.encoder,
+                                  args.backend, args.weights, args.device, args.keep, args.also_encode_video,
+                                  progress=_progress), args.output)
+    return run
+
+
+def _plots(parser):
+    from ..bench.blender import ROOT
+    parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), help="folder of the JSON reports")
+    parser.add_argument("--out", default=str(ROOT / "docs"), help="folder for the PNGs")
+
+    def run(args) -> dict:
+        from ..bench.plots import make_plots
+        from ..errors import HyperGSError
+        written = make_plots(args.bench, args.out)
+        if not written:
+            raise HyperGSError(f"no vs-fit / vs-x265 / scale reports in {args.bench}")
+        return {"written": [str(p) for p in written]}
+    return run
+
+
+# name -> (help, function adding the options and returning `args -> report dict`)
+BENCH_COMMANDS = {
+    "raster": ("rasterizer frames/s: numba / torch paths, numpy-only path, dense reference", _raster),
+    "encode": ("network encode clips/s and frames/s (torch and onnxruntime) for N in {250, 1000, 3000}", _encode),
+    "codec": (".hgs rate-distortion at 8/6/4 bits next to x265 (bpp, PSNR, frames/s)", _codec),
+    "vs-fit": ("feedforward vs feedforward + refine vs per-frame fitting: PSNR, s/frame, ratio at matched PSNR",
+               _vs_fit),
+    "vs-x265": ("matched-quality pairs, .hgs vs x265: bpp, PSNR, SSIM, encode/decode frames/s", _vs_x265),
+    "scale": ("a long (default synthetic 60 s 720p) video end to end: frames/s, peak memory, 1080p render", _scale),
+    "plots": ("plots (docs/*.png) and docs/bench/tables.md from the JSON reports in docs/bench", _plots),
+}
+
+
+def _print_report(report: dict, indent: int = 0) -> None:
+    for key, value in report.items():
+        if isinstance(value, dict):
+            print(" " * indent + f"{key}:")
+            _print_report(value, indent + 2)
+        else:
+            print(" " * indent + f"{key}: {value}")
+
+
+def add_commands(subparsers) -> None:
+    bench = subparsers.add_parser("bench", help="benchmarks")
+    kinds = bench.add_subparsers(dest="bench", required=True)
+    for name, (help_text, add_options) in BENCH_COMMANDS.items():
+        parser = kinds.add_parser(name, help=help_text, description=help_text)
+        parser.add_argument("--json", action="store_true", help="print the report as JSON")
+        run = add_options(parser)
+
+        def func(args, run=run):
+            report = run(args)
+            if args.json:
+                print(json.dumps(report, indent=2))
+            elif isinstance(report.get("table"), str):
+                print(report["table"])
+            else:
+                _print_report(report)
+        parser.set_defaults(func=func)

@@ -1,0 +1,61 @@
+"""`hypergs prepare-data` (the training data under data/) and `hypergs preview-data` (a contact sheet of
+training clips)."""
+from __future__ import annotations
+
+import sys
+
+from ..io.images import write_image
+from ..training.data import DEFAULT_SPEC, build_sources, contact_sheet
+from ..training.prepare import VAL_PHOTO_COUNT, prepare_photos, prepare_videos
+from ..training.sources import DEFAULT_ROOT, make_batch
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser(
+        "prepare-data", help="download and cache the default training photos (and/or your videos)",
+        description="Prepare training data under ROOT. With no --photos/--videos: the default set "
+                    "(wallpaper photos from Debian packages -> photos_cache.npz + photos_val_cache.npz). "
+                    "Idempotent: skips caches that are up to date unless --force.")
+    p.add_argument("--root", default=DEFAULT_ROOT, help="data folder (default: %(default)s)")
+    p.add_argument("--photos", action="store_true", help="prepare the photo caches")
+    p.add_argument("--photo-folder", default=None,
+                   help="build the photo caches from this folder of images instead of ROOT/photos "
+                        "(no download)")
+    p.add_argument("--videos", nargs="+", default=[], metavar="FOLDER",
+                   help="pre-extract a clip cache from each folder of videos (use videos=FOLDER in the "
+                        "training spec)")
+    p.add_argument("--val-photos", type=int, default=VAL_PHOTO_COUNT, help="held-out photos (default: %(default)s)")
+    p.add_argument("--video-size", type=int, default=256,
+                   help="cached clip side in pixels, about 2x the canvas (default: %(default)s)")
+    p.add_argument("--video-frames", type=int, default=16, help="frames per cached clip (default: %(default)s)")
+    p.add_argument("--clips-per-video", type=int, default=8, help="(default: %(default)s)")
+    p.add_argument("--force", action="store_true", help="rebuild caches that exist")
+    p.set_defaults(func=_cmd_prepare)
+
+    q = subparsers.add_parser("preview-data", help="write a contact sheet of random training clips",
+                              description="One row per clip of make_batch, one column per frame.")
+    q.add_argument("--spec", default=DEFAULT_SPEC, help="source spec (default: %(default)s)")
+    q.add_argument("--root", default=DEFAULT_ROOT, help="data folder (default: %(default)s)")
+    q.add_argument("--clips", type=int, default=8)
+    q.add_argument("--frames", type=int, default=4)
+    q.add_argument("--size", type=int, default=128)
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--out", required=True, help="image file to write (.png)")
+    q.set_defaults(func=_cmd_preview)
+
+
+def _cmd_prepare(args) -> None:
+    do_photos = args.photos or args.photo_folder is not None or not args.videos
+    if do_photos:
+        prepare_photos(args.root, folder=args.photo_folder, force=args.force, val_count=args.val_photos)
+    for folder in args.videos:
+        prepare_videos(folder, args.root, cache_size=args.video_size, cache_frames=args.video_frames,
+                       clips_per_video=args.clips_per_video, force=args.force)
+    sys.stdout.flush()
+
+
+def _cmd_preview(args) -> None:
+    sources = build_sources(args.spec, args.root)
+    batch = make_batch(sources, args.seed, 0, 0, args.clips, args.frames, args.size)
+    write_image(args.out, contact_sheet(batch))
+    print(f"wrote {args.out}: {args.clips} clips x {args.frames} frames from {args.spec}")

@@ -1,0 +1,121 @@
+"""Per-frame Gaussian fitting (the 2DGS / GaussianImage baseline) and warm-started refinement.
+
+Every frame of a batch is optimised at once through the batched rasterizer: Adam on unconstrained
+parameters (means = tanh(raw), scales = exp(raw), free rotation and colours). `fit` from scratch
+decays its learning rate over its length (cosine); `refine_params` keeps it constant, so refining for
+K steps passes through the same states as refining for fewer: one run with an `on_step` hook gives
+every shorter refinement too (what the benches time).
+Refinement starts from given parameters; its first and cheapest step is the least-squares colours for
+the given geometry: with opacity 1 the render is linear in the colours, I = A c, so
+c = argmin |A c - y|^2 is solved by conjugate gradients on the normal equations, each iteration one
+rasterizer forward (A c) and one backward (A^T r).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from .render import render_torch
+
+REFINE_LR = 0.005  # Adam's step size after the least-squares colours (refine_params)
+
+
+def _render(params: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    return render_torch(params, width, height, width, height)
+
+
+def _pack(params: torch.Tensor) -> torch.Tensor:
+    raw = params.clone()
+    raw[..., 0:2] = torch.atanh(params[..., 0:2].clamp(-0.999, 0.999))
+    raw[..., 2:4] = torch.log(params[..., 2:4].clamp_min(1e-3))
+    return raw
+
+
+def _unpack(raw: torch.Tensor) -> torch.Tensor:
+    return torch.cat([torch.tanh(raw[..., 0:2]), torch.exp(raw[..., 2:4]), raw[..., 4:]], dim=-1)
+
+
+def random_init(num_frames: int, n: int, width: int, height: int, seed: int = 0) -> np.ndarray:
+    """Means uniform over the frame, isotropic sigma 0.6 x the grid spacing, random rotation, grey-ish colours."""
+    rng = np.random.default_rng(seed)
+    params = np.empty((num_frames, n, 8), np.float32)
+    params[..., 0:2] = rng.uniform(-1, 1, (num_frames, n, 2))
+    params[..., 2:4] = 0.6 * math.sqrt(width * height / n)
+    params[..., 4] = rng.uniform(0, 2 * math.pi, (num_frames, n))
+    params[..., 5:8] = rng.uniform(0.1, 0.5, (num_frames, n, 3))
+    return params
+
+
+def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations: int = 10,
+                          ridge: float = 1e-4) -> torch.Tensor:
+    """Best colours for fixed geometry: CG on (A^T A + ridge I) c = A^T y, per frame and channel."""
+    h, w = target.shape[-3:-1]
+    geometry = params[..., :5].detach()
+
+    def apply_a(c):
+        return _render(torch.cat([geometry, c], -1), w, h)
+
+    def apply_at(image):
+        c = torch.zeros_like(params[..., 5:8], requires_grad=True)
+        with torch.enable_grad():
+            (apply_a(c) * image).sum().backward()
+        return c.grad
+
+    def normal(c):
+        return apply_at(apply_a(c)) + ridge * c
+
+    c = params[..., 5:8].detach().clone()
+    r = apply_at(target) - normal(c)
+    p = r.clone()
+    rs = (r * r).sum(-2, keepdim=True)  # per frame and channel
+    for _ in range(iterations):
+        ap = normal(p)
+        alpha = rs / (p * ap).sum(-2, keepdim=True).clamp_min(1e-20)
+        c = c + alpha * p
+        r = r - alpha * ap
+        rs_new = (r * r).sum(-2, keepdim=True)
+        p = r + (rs_new / rs.clamp_min(1e-20)) * p
+        rs = rs_new
+    return torch.cat([params[..., :5].detach(), c], -1)
+
+
+def fit(target: torch.Tensor, init: torch.Tensor, iters: int, lr: float = 0.02, schedule: str = "cosine",
+        on_step=None) -> torch.Tensor:
+    """Optimise params [T, N, 8] (canvas = the target's W x H) to target [T, H, W, 3] for `iters` Adam
+    steps. schedule: "cosine" (decays to 5 % of lr over `iters`) or "constant".
+    on_step(step, params_fn): called after each step (1-based); params_fn() gives the params then."""
+    if schedule not in ("cosine", "constant"):
+        raise ValueError(f"fit: unknown schedule {schedule!r}")
+    h, w = target.shape[-3:-1]
+    raw = _pack(init.detach()).requires_grad_(True)
+    optimizer = torch.optim.Adam([raw], lr=lr)
+    scheduler = (torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max(1, iters), eta_min=lr * 0.05)
+                 if schedule == "cosine" else None)
+    for step in range(iters):
+        loss = torch.mean((_render(_unpack(raw), w, h) - target) ** 2)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        if scheduler is not None:
+            scheduler.step()
+        if on_step is not None:
+            on_step(step + 1, lambda: _unpack(raw.detach()))
+    return _unpack(raw.detach())
+
+
+def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, on_step=None, device="cpu") -> np.ndarray:
+    """Warm-started refinement of [T, N, 8] params on a W x H canvas against uint8 frames [T, H, W, 3]:
+    least-squares colours (step 1), then `steps - 1` Adam steps from there at REFINE_LR.
+    on_step(k, params_fn) is called after each of the `steps` steps, k = 1..steps (see `fit`)."""
+    if steps < 1:
+        raise ValueError(f"refine steps must be >= 1, got {steps}")
+    target = torch.from_numpy(frames).to(device).float() / 255
+    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)).to(device), target)
+    if on_step is not None:
+        on_step(1, lambda: refined)
+    if steps > 1:
+        hook = None if on_step is None else (lambda k, params_fn: on_step(k + 1, params_fn))
+        refined = fit(target, refined, steps - 1, lr=REFINE_LR, schedule="constant", on_step=hook)
+    return refined.cpu().numpy()

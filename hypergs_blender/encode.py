@@ -1,122 +1,162 @@
-"""Video -> GaussianVideo: tiles frames onto the network's canvas, runs a predictor in T-frame
-clips, merges tiles back onto the frame. Predictors: the bundled network through torch or
-onnxruntime (network.py), and the grid floor that every model must beat (`FloorEncoder`).
+"""Video -> GaussianVideo. A frame of W x H pixels is encoded on a `Layout`: a cols x rows grid of cells,
+one Gaussian each, whose size (in source pixels) is the density a user chooses, by a Gaussian count
+(`--gaussians`) or a cell size (`--cell`). The encoder sees the frame resized to its working size, at
+which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
+the W x H canvas (exact covariance, gaussians.stretch_params).
 
-Gaussian counts are per frame: with a G x G patch grid each tile gets N / G^2 of them.
+Encoders: the trained network through torch or onnxruntime (network.py), and the grid floor that every
+model must beat (`FloorEncoder`). Each has `name`, `stride` and `predict(working frames) -> params`.
 """
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from .errors import HyperGSError
-from .gaussians import GaussianVideo, grid_anchors, merge_tiles, tile_bounds
+from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
+
+MAX_CELL = 32.0  # source pixels per cell side; coarser would shrink frames more than 8x (untrained)
+QUALITY = {  # cell size in source pixels and refine steps of each quality preset
+    "draft": dict(cell=8.0, refine=0),
+    "standard": dict(cell=6.0, refine=0),
+    "high": dict(cell=4.0, refine=30),
+}
 
 
 class Cancelled(HyperGSError):
     """The user cancelled an encode; nothing was written."""
 
 
+@dataclass(frozen=True)
+class Layout:
+    """Where the Gaussians of a width x height frame go: cols x rows cells, one Gaussian each. The
+    encoder sees the frame at its working size, cols * stride x rows * stride pixels."""
+    width: int
+    height: int
+    cols: int
+    rows: int
+    stride: int
+    note: str = ""  # why the request was changed (clamped to the trained range), for the user
+
+    @property
+    def count(self) -> int:
+        return self.cols * self.rows
+
+    @property
+    def cell(self) -> float:
+        """Mean cell side in source pixels."""
+        return math.sqrt(self.width * self.height / self.count)
+
+    @property
+    def work_width(self) -> int:
+        return self.cols * self.stride
+
+    @property
+    def work_height(self) -> int:
+        return self.rows * self.stride
+
+
+def plan_layout(width: int, height: int, stride: int, gaussians: int | None = None, cell: float | None = None,
+                granule: int = 1) -> Layout:
+    """The layout of a width x height frame for about `gaussians` Gaussians, or cells of `cell` source
+    pixels (exactly one of the two). Cells are kept between `stride` source pixels (the network never
+    sees an upscaled frame) and MAX_CELL; a request outside that is clamped, and `note` says so.
+    cols and rows are multiples of `granule` (the network's coarsest level, in cells)."""
+    if (gaussians is None) == (cell is None):
+        raise HyperGSError("give a Gaussian count or a cell size, not both")
+    if gaussians is not None:
+        if gaussians < 1:
+            raise HyperGSError(f"the Gaussian count must be at least 1, got {gaussians}")
+        wanted = math.sqrt(width * height / gaussians)
+        asked = f"{gaussians} Gaussians"
+    else:
+        if not cell > 0:
+            raise HyperGSError(f"the cell size must be positive, got {cell}")
+        wanted = float(cell)
+        asked = f"cells of {cell:g} px"
+    lo, hi = float(stride), MAX_CELL
+    used = min(max(wanted, lo), hi)
+    cols = max(granule, round(width / used / granule) * granule)
+    rows = max(granule, round(height / used / granule) * granule)
+    note = ""
+    if used != wanted:
+        limit = ("at most one Gaussian per {0}x{0} pixels".format(stride) if used == lo
+                 else f"cells of at most {hi:g} px")
+        note = (f"{asked} on {width}x{height} is outside the trained range ({limit}): "
+                f"using {cols * rows} ({cols}x{rows} cells of {math.sqrt(width * height / (cols * rows)):.1f} px)")
+    return Layout(width, height, cols, rows, stride, note)
+
+
 class FloorEncoder:
-    """The floor: N Gaussians on a regular grid, colours sampled from the area-averaged frame and
-    scaled so the overlapping kernels sum to the image. No learning."""
+    """The floor: one Gaussian per cell at its centre, sigma INITIAL_SIGMA cells, colour the cell's mean
+    times the gain that makes the overlapping kernels sum to the image. No learning (the network with
+    a zero output head)."""
 
     name = "floor"
+    stride = 4
+    granule = 1
 
-    def __init__(self, canvas: int = 128, clip_frames: int = 4, sigma_per_spacing: float = 0.6):
-        self.canvas, self.clip_frames, self.sigma_per_spacing = canvas, clip_frames, sigma_per_spacing
+    def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
+        return [], []  # one pass over the whole frame
 
-    def predict(self, frames: np.ndarray, n: int) -> np.ndarray:
-        """frames float32 [B, T, c, c, 3] in [0, 1] -> params [B, T, n, 8]."""
-        anchors = grid_anchors(n)
-        c = self.canvas
-        spacing = c / math.sqrt(n)
-        sigma = self.sigma_per_spacing * spacing
-        gain = spacing * spacing / (2 * math.pi * sigma * sigma)
-        px = np.clip(((anchors + 1) * 0.5 * c).astype(int), 0, c - 1)
-        colours = _box_blur(frames, max(1, round(spacing)))[..., px[:, 1], px[:, 0], :] * gain
-        out = np.empty(frames.shape[:2] + (n, 8), np.float32)
-        out[..., 0:2] = anchors
-        out[..., 2:4] = sigma
+    def predict(self, frames: np.ndarray) -> np.ndarray:
+        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]."""
+        b, h, w, _ = frames.shape
+        s = self.stride
+        rows, cols = h // s, w // s
+        out = np.empty((b, rows, cols, 8), np.float32)
+        out[..., 0] = ((np.arange(cols) + 0.5) * s * 2 / w - 1)[None, None, :]
+        out[..., 1] = ((np.arange(rows) + 0.5) * s * 2 / h - 1)[None, :, None]
+        out[..., 2:4] = INITIAL_SIGMA * s
         out[..., 4] = 0
-        out[..., 5:8] = colours
-        return out
+        out[..., 5:8] = frames.reshape(b, rows, s, cols, s, 3).mean((2, 4)) * COLOUR_GAIN
+        return out.reshape(b, rows * cols, 8)
 
 
-def _box_blur(frames: np.ndarray, k: int) -> np.ndarray:
-    """Mean over a k x k window around each pixel (edges clamped), via cumulative sums."""
-    pad = np.pad(frames, [(0, 0)] * (frames.ndim - 3) + [(k // 2, k - 1 - k // 2)] * 2 + [(0, 0)], mode="edge")
-    cs = np.cumsum(np.cumsum(pad, axis=-3), axis=-2)
-    cs = np.pad(cs, [(0, 0)] * (frames.ndim - 3) + [(1, 0), (1, 0), (0, 0)])
-    h, w = frames.shape[-3:-1]
-    total = cs[..., k:k + h, k:k + w, :] - cs[..., :h, k:k + w, :] - cs[..., k:k + h, :w, :] + cs[..., :h, :w, :]
-    return total / (k * k)
+def encode_frames(frames: np.ndarray, encoder, layout: Layout) -> np.ndarray:
+    """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas."""
+    work = np.stack([resize_exact(f, layout.work_width, layout.work_height) for f in frames])
+    params = encoder.predict(work.astype(np.float32) / 255)
+    tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
+    return stretch_params(params, tx, ty) if (tx, ty) != (1, 1) else params
 
 
-def canvas_tiles(frame: np.ndarray, grid: int, canvas: int) -> np.ndarray:
-    """uint8 frame [H, W, 3] -> [G, G, canvas, canvas, 3] float32 tiles, each resized (area filter)."""
-    h, w = frame.shape[:2]
-    xb, yb = tile_bounds(w, grid), tile_bounds(h, grid)
-    tiles = np.empty((grid, grid, canvas, canvas, 3), np.float32)
-    for r in range(grid):
-        for c in range(grid):
-            tiles[r, c] = resize_exact(frame[yb[r]:yb[r + 1], xb[c]:xb[c + 1]], canvas, canvas) / 255.0
-    return tiles
-
-
-def split_count(gaussian_count: int, grid: int) -> int:
-    """The Gaussian count a G x G grid encodes for a requested count: the nearest multiple of G^2
-    (halves round up; each tile gets an equal share, at least one)."""
-    return max(1, int(gaussian_count / (grid * grid) + 0.5)) * grid * grid
-
-
-def encode_frames(frames: np.ndarray, encoder, gaussian_count: int, grid: int = 1) -> np.ndarray:
-    """uint8 frames [T, H, W, 3] -> params [T, gaussian_count, 8] on a W x H canvas.
-
-    The frames are cut into T-frame clips (the last one padded by repeating its final frame) and every
-    tile of every clip goes through the predictor in one batch."""
-    if gaussian_count % (grid * grid):
-        raise HyperGSError(f"{gaussian_count} Gaussians do not split evenly over a {grid}x{grid} grid")
-    per_tile = gaussian_count // (grid * grid)
-    t, h, w = frames.shape[:3]
-    clip = encoder.clip_frames
-    padded = np.concatenate([frames, np.repeat(frames[-1:], (-t) % clip, axis=0)])
-    tiles = np.stack([canvas_tiles(f, grid, encoder.canvas) for f in padded])  # [Tp, G, G, c, c, 3]
-    tiles = tiles.reshape(-1, clip, grid * grid, encoder.canvas, encoder.canvas, 3).transpose(0, 2, 1, 3, 4, 5)
-    batch = tiles.reshape(-1, clip, encoder.canvas, encoder.canvas, 3)  # [clips * G*G, T, c, c, 3]
-    params = encoder.predict(np.ascontiguousarray(batch), per_tile)  # [clips * G*G, T, n, 8]
-    params = params.reshape(-1, grid, grid, clip, per_tile, 8).transpose(1, 2, 0, 3, 4, 5)
-    params = params.reshape(grid, grid, -1, per_tile, 8)[:, :, :t]
-    return merge_tiles(params, (grid, grid), w, h, encoder.canvas)
+def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None) -> Layout:
+    """plan_layout for frames [T, H, W, 3] and an encoder."""
+    return plan_layout(frames.shape[2], frames.shape[1], encoder.stride, gaussians, cell, encoder.granule)
 
 
 class EncodePlan:
     """What encoding a video will produce, known before any frame is decoded: the frames to take,
-    the canvas, the frame rate and the source description."""
+    the layout, the frame rate and the source description."""
 
-    def __init__(self, path, encoder, gaussian_count: int = 1000, grid: int = 1, size: int | None = None,
-                 start: int = 0, stop: int | None = None, num_frames: int | None = None):
+    def __init__(self, path, encoder, gaussians: int | None = None, cell: float | None = None,
+                 size: int | None = None, start: int = 0, stop: int | None = None, num_frames: int | None = None):
         info = probe(path)
-        self.path, self.encoder, self.gaussian_count, self.grid, self.size = path, encoder, gaussian_count, grid, size
+        self.path, self.encoder, self.size = path, encoder, size
         self.indices = sample_indices(info.num_frames, num_frames, start, stop)
         self.height, self.width = (size, size) if size else (info.height, info.width)
+        self.layout = plan_layout(self.width, self.height, encoder.stride, gaussians, cell, encoder.granule)
         idx = self.indices
         self.fps = info.fps * (len(idx) - 1) / max(1, idx[-1] - idx[0]) if len(idx) > 1 else info.fps
-        self.source = dict(path=str(path), frames=idx, size=[info.width, info.height],
-                           encoder=getattr(encoder, "name", type(encoder).__name__))
+        self.source = dict(path=str(path), frames=idx, size=[info.width, info.height], encoder=encoder.name)
 
-    def chunks(self, progress: Progress | None = None, chunk_clips: int = 4, refine: int = 0):
+    @property
+    def grid(self) -> tuple[int, int]:
+        return self.layout.cols, self.layout.rows
+
+    def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0):
         """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
-        encoded `chunk_clips` clips at a time, so memory does not grow with the video. `progress` may
+        encoded `chunk_frames` at a time, so memory does not grow with the video. `progress` may
         return False to cancel (raises Cancelled)."""
-        chunk = chunk_clips * self.encoder.clip_frames
         done, buffer = 0, []
 
         def report():
@@ -124,7 +164,7 @@ class EncodePlan:
                 raise Cancelled("encoding cancelled")
 
         def encode(frames):
-            params = encode_frames(frames, self.encoder, self.gaussian_count, self.grid)
+            params = encode_frames(frames, self.encoder, self.layout)
             if refine:
                 from .refine import refine_params
                 params = refine_params(params, frames, refine)
@@ -133,7 +173,7 @@ class EncodePlan:
         report()
         for _, frame in iter_frames(self.path, self.indices, self.size):
             buffer.append(frame)
-            if len(buffer) == chunk:
+            if len(buffer) == chunk_frames:
                 yield encode(np.stack(buffer))
                 done += len(buffer)
                 buffer.clear()
@@ -144,14 +184,14 @@ class EncodePlan:
             report()
 
 
-def encode_video(path, encoder, gaussian_count: int = 1000, grid: int = 1, size: int | None = None,
+def encode_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = None,
                  start: int = 0, stop: int | None = None, num_frames: int | None = None,
-                 progress: Progress | None = None, chunk_clips: int = 4, refine: int = 0) -> GaussianVideo:
+                 progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0) -> GaussianVideo:
     """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
     one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
     short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
     started = time.perf_counter()
-    plan = EncodePlan(path, encoder, gaussian_count, grid, size, start, stop, num_frames)
-    params = np.concatenate([p for _, p in plan.chunks(progress, chunk_clips, refine)])
-    return GaussianVideo(params, plan.width, plan.height, plan.fps, (grid, grid),
+    plan = EncodePlan(path, encoder, gaussians, cell, size, start, stop, num_frames)
+    params = np.concatenate([p for _, p in plan.chunks(progress, chunk_frames, refine)])
+    return GaussianVideo(params, plan.width, plan.height, plan.fps, plan.grid,
                          dict(plan.source, encode_seconds=time.perf_counter() - started))

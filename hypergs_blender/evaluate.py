@@ -1,5 +1,6 @@
 """Quality and speed of encode -> render against the source frames (what `hypergs eval` reports):
-PSNR / SSIM / MS-SSIM, the bilinear floor every model must clear, and timings."""
+PSNR / SSIM / MS-SSIM, the floors every model must clear, the artefact checks (seams at tile borders,
+a lattice in flat regions, dark frame edges), and timings."""
 from __future__ import annotations
 
 import time
@@ -7,48 +8,72 @@ import time
 import numpy as np
 
 from . import metrics
-from .encode import encode_frames
-from .gaussians import GaussianVideo
-from .io.frames import probe, read_frames
-from .render import render_frames
+from .encode import encode_frames, frames_layout
+from .io.frames import read_frames
+from .render import render_params
 
 
 def bilinear_floor_psnr(frames: np.ndarray, n: int) -> float:
-    """The floor every model must clear: the frames average-pooled to about N colours
-    (sqrt(N) x sqrt(N) cells) and upsampled bilinearly. Mean PSNR over the frames."""
+    """The floor every model must clear: the frames average-pooled to about N colours (cells of the
+    frame's aspect) and upsampled bilinearly. Mean PSNR over the frames."""
     import torch
     import torch.nn.functional as F
+    h, w = frames.shape[1:3]
     x = torch.from_numpy(frames).float().permute(0, 3, 1, 2) / 255
-    side = max(1, round(np.sqrt(n)))
-    up = F.interpolate(F.adaptive_avg_pool2d(x, side), size=x.shape[-2:], mode="bilinear", align_corners=False)
+    cell = np.sqrt(h * w / n)
+    pooled = F.adaptive_avg_pool2d(x, (max(1, round(h / cell)), max(1, round(w / cell))))
+    up = F.interpolate(pooled, size=(h, w), mode="bilinear", align_corners=False)
     return float(np.mean(metrics.psnr(up.permute(0, 2, 3, 1).numpy(), frames / np.float32(255))))
 
 
-def evaluate_video(path, encoder, gaussians: int, grid: int = 1, size: int | None = 256, frames: int = 8,
-                   refine: int = 0) -> dict:
-    """size None: native (short side of the video)."""
-    if size is None:
-        info = probe(path)
-        size = min(info.width, info.height)
+def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None = None) -> np.ndarray:
+    """`frames` frames spread over the video: short-side resized and centre-cropped to size x size,
+    or (crop) a crop x crop centre crop at the video's own resolution, or (neither) whole frames."""
     source, _, _ = read_frames(path, frames, size=size)
+    if crop:
+        h, w = source.shape[1:3]
+        y0, x0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
+        source = np.ascontiguousarray(source[:, y0:y0 + crop, x0:x0 + crop])
+    return source
+
+
+def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
+                    refine: int = 0) -> dict:
+    """Encode uint8 frames [T, H, W, 3], render them at H x W, and measure."""
+    t, h, w = source.shape[:3]
+    layout = frames_layout(source, encoder, gaussians, cell)
     started = time.perf_counter()
-    params = encode_frames(source, encoder, gaussians, grid)
+    params = encode_frames(source, encoder, layout)
     if refine:
         from .refine import refine_params
         params = refine_params(params, source, refine)
     encode_seconds = time.perf_counter() - started
-    video = GaussianVideo(params, size, size)
     started = time.perf_counter()
-    rendered = render_frames(video, size, size)
+    rendered = render_params(params, w, h, w, h)
     decode_seconds = time.perf_counter() - started
-    result = metrics.summary(rendered, source / np.float32(255))
-    return dict(video=str(path), size=size, frames=len(source), gaussians=gaussians, grid=grid, **result,
-                floor_bilinear_psnr=bilinear_floor_psnr(source, gaussians),
+    target = source / np.float32(255)
+    xs, ys = encoder.tile_borders(layout.work_width, layout.work_height)
+    sx, sy = w / layout.work_width, h / layout.work_height
+    artefacts = {"seam_ratio": metrics.seam_ratio(rendered, target, [round(x * sx) for x in xs],
+                                                  [round(y * sy) for y in ys]),
+                 "tiles": [len(xs) + 1, len(ys) + 1],
+                 "flat_ripple": metrics.flat_ripple(rendered, target, window=round(2 * layout.cell)),
+                 "edge_bias": metrics.edge_bias(rendered, target)}
+    return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows],
+                cell=round(layout.cell, 3), note=layout.note, refine=refine, **metrics.summary(rendered, target),
+                floor_bilinear_psnr=bilinear_floor_psnr(source, layout.count), **artefacts,
                 encode_seconds=encode_seconds, decode_seconds=decode_seconds,
-                encode_fps=len(source) / encode_seconds, decode_fps=len(source) / decode_seconds)
+                encode_fps=t / encode_seconds, decode_fps=t / decode_seconds)
+
+
+def evaluate_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = 256,
+                   crop: int | None = None, frames: int = 8, refine: int = 0) -> dict:
+    source = read_eval_frames(path, frames, size, crop)
+    return dict(video=str(path), **evaluate_frames(source, encoder, gaussians, cell, refine))
 
 
 def warm_up(encoder) -> None:
     """One tiny encode + render, so one-time costs (JIT compilation, thread pools) stay out of the timings."""
-    blank = np.zeros((encoder.clip_frames, 32, 32, 3), np.uint8)
-    render_frames(GaussianVideo(encode_frames(blank, encoder, 16), 32, 32), 32, 32)
+    blank = np.zeros((1, 32, 32, 3), np.uint8)
+    layout = frames_layout(blank, encoder, gaussians=16)
+    render_params(encode_frames(blank, encoder, layout), 32, 32, 32, 32)

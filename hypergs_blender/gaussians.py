@@ -20,6 +20,21 @@ import numpy as np
 
 PARAMS = ("x", "y", "scale_x", "scale_y", "rotation", "r", "g", "b")
 NUM_PARAMS = len(PARAMS)
+# A grid of Gaussians with sigma INITIAL_SIGMA x the spacing, each with colour COLOUR_GAIN x c, sums to c
+# on average: the grid floor, where models start. The gain is 1 / the mean over a cell of the kernels'
+# sum, each cut at its 3-sigma box (raster.SIGMA_CUTOFF) as the rasterizer does (about spacing^2 /
+# (2 pi sigma^2), less the 0.5 % the cut-off drops); the box is separable, so the sum is a 1D sum squared.
+INITIAL_SIGMA = 0.6
+
+
+def _lattice_gain(sigma: float, cutoff: float = 3.0) -> float:
+    x = (np.arange(4096) + 0.5) / 4096
+    d = x[:, None] - np.arange(-8, 9)[None, :]
+    kernel = np.where(np.abs(d) <= cutoff * sigma, np.exp(-0.5 * (d / sigma) ** 2), 0.0)
+    return float(1.0 / kernel.sum(1).mean() ** 2)
+
+
+COLOUR_GAIN = _lattice_gain(INITIAL_SIGMA)
 
 
 @dataclass
@@ -127,28 +142,3 @@ def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
     out[..., 3] = np.sqrt(np.maximum(a * s * s - 2 * b * s * c + d * c * c, 0))
     out[..., 4] = np.mod(theta, 2 * np.pi)
     return out
-
-
-def tile_bounds(size: int, grid: int) -> np.ndarray:
-    """Pixel boundaries of `grid` tiles along an axis of `size` pixels: grid + 1 integers."""
-    return np.round(np.linspace(0, size, grid + 1)).astype(int)
-
-
-def merge_tiles(tile_params: np.ndarray, grid: tuple[int, int], width: int, height: int,
-                canvas: int) -> np.ndarray:
-    """Gaussians predicted per tile on a canvas x canvas canvas -> one frame of width x height.
-
-    tile_params: [rows, cols, T, N, 8] (tile (r, c) covers rows r and columns c of the
-    tile_bounds grid). Returns [T, rows * cols * N, 8] on a width x height canvas (scale in frame pixels).
-    """
-    cols, rows = grid
-    xb, yb = tile_bounds(width, cols), tile_bounds(height, rows)
-    merged = []
-    for r in range(rows):
-        for c in range(cols):
-            tw, th = xb[c + 1] - xb[c], yb[r + 1] - yb[r]
-            p = stretch_params(tile_params[r, c], tw / canvas, th / canvas)
-            p[..., 0] = (xb[c] + (p[..., 0] + 1) * 0.5 * tw) / width * 2 - 1
-            p[..., 1] = (yb[r] + (p[..., 1] + 1) * 0.5 * th) / height * 2 - 1
-            merged.append(p)
-    return np.concatenate(merged, axis=-2).astype(np.float32)

@@ -34,6 +34,62 @@ def summary(pred, target) -> dict:
             "ms_ssim": float(np.mean(ms_ssim(pred, target)))}
 
 
+# ---- artefacts: seams at tile borders, a lattice in flat regions, dark frame edges ---------------------
+# Each compares the render with the source on frames [T, H, W, 3] in [0, 1]; figures in 1/255 units.
+
+def seam_ratio(pred, target, xs=(), ys=(), band: int = 2) -> float | None:
+    """Mean squared error within `band` pixels of the tile borders (columns xs, rows ys) over the mean
+    squared error elsewhere: about 1 without seams. None when there are no borders."""
+    pred, target = _numpy(pred), _numpy(target)
+    h, w = pred.shape[-3:-1]
+    near = np.zeros((h, w), bool)
+    for x in xs:
+        near[:, max(0, x - band):x + band] = True
+    for y in ys:
+        near[max(0, y - band):y + band, :] = True
+    if not near.any() or near.all():
+        return None
+    err = ((np.clip(pred, 0, 1) - target) ** 2).mean(-1).reshape(-1, h, w)
+    return float(err[:, near].mean() / max(err[:, ~near].mean(), 1e-12))
+
+
+def flat_ripple(pred, target, window: int, flat: float = 1.0) -> dict:
+    """In `window` x `window` blocks inside flat regions (the block and its 8 neighbours all have a
+    source std < `flat`/255 in every channel, so neither the frame's edge nor an object's is near),
+    the std of the source and of the render (a lattice of blobs at the Gaussians' spacing shows as a
+    render std well above the source's): means over those blocks, in 1/255 units, and their count."""
+    pred, target = _numpy(pred), _numpy(target)
+    h, w = pred.shape[-3:-1]
+    k = max(2, int(window))
+    hh, ww = h // k * k, w // k * k
+
+    def blocks(a):
+        a = a.reshape(-1, h, w, 3)[:, :hh, :ww]
+        return a.reshape(a.shape[0], hh // k, k, ww // k, k, 3).std(axis=(2, 4)) * 255  # [T, by, bx, 3]
+
+    src, out = blocks(target), blocks(np.clip(pred, 0, 1))
+    flat_blocks = (src < flat).all(-1)
+    keep = np.zeros_like(flat_blocks)
+    keep[:, 1:-1, 1:-1] = True
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            keep[:, 1:-1, 1:-1] &= flat_blocks[:, 1 + dy:flat_blocks.shape[1] - 1 + dy, 1 + dx:flat_blocks.shape[2] - 1 + dx]
+    if not keep.any():
+        return {"blocks": 0, "source_std": None, "render_std": None}
+    return {"blocks": int(keep.sum()), "source_std": float(src[keep].mean()), "render_std": float(out[keep].mean())}
+
+
+def edge_bias(pred, target, band: int = 6) -> float:
+    """Mean signed error (render - source) in the `band`-pixel frame border minus that of the interior,
+    in 1/255 units: negative when the frame's edges come back darker."""
+    pred, target = _numpy(pred), _numpy(target)
+    h, w = pred.shape[-3:-1]
+    err = (np.clip(pred, 0, 1) - target).mean(-1).reshape(-1, h, w) * 255
+    border = np.ones((h, w), bool)
+    border[band:h - band, band:w - band] = False
+    return float(err[:, border].mean() - err[:, ~border].mean())
+
+
 def _per_frame(fn, pred, target, **kwargs) -> np.ndarray:
     import torch
     p = torch.as_tensor(_numpy(pred), dtype=torch.float32).clamp(0, 1)

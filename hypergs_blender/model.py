@@ -1,4 +1,25 @@
-"""The HyperGS hypernetwork: a video clip in, N Gaussians per frame out, in one forward pass.
+"""HyperGS networks: video frames in, 2D Gaussians out (8 numbers each, see gaussians.PARAMS), in one
+forward pass. Two designs, both built from a config dataclass (`build_model`):
+
+ConvGS (the default, preset "conv"): fully convolutional, one Gaussian per `stride` x `stride` cell of
+its input. The input is the frame resized to the working size at which each cell is `stride` pixels
+(encode.Layout): the Gaussian density is the input's resolution, so one model serves every count,
+and more Gaussians always see more of the frame. Per frame:
+
+    frame [B, H, W, 3]
+      -> two 3x3 convs at full resolution, a stride x stride conv down to one feature per cell,
+         plus a linear map of the cell's own pixels (pixel-unshuffle)
+      -> residual 3x3 blocks at cell resolution, then at coarser levels (x2 each, for context) and
+         back up with skips (a small U-Net; `blocks` per level)
+      -> a 1x1 head to 8 numbers per cell
+      -> mean  = cell centre + tanh(h) x offset_range cells    (may leave its cell: no seams)
+         scale = INITIAL_SIGMA x stride x exp(scale_range tanh(h / scale_range))   (bounded)
+         rotation = pi h, colour = COLOUR_GAIN x the cell's mean colour + h         (signed)
+The head starts at zero, i.e. at the Gaussian grid floor, and training learns corrections. The
+network is translation-equivariant with a finite receptive field (`ConvConfig.reach`): a frame
+encoded in tiles that overlap by at least that much gives exactly the Gaussians of one pass.
+
+HyperGS (the paper's design, presets "small" and "paper"):
 
     frames [B, T, c, c, 3]
       -> 3D-conv tokenizer (kernel 1 x p x p) + learnable spatio-temporal position embedding   Z^0
@@ -8,7 +29,7 @@
       -> Q-Transformer, per frame: [patch tokens; N Gaussian tokens] through self-attention blocks
       -> heads on the Gaussian tokens -> [B, T, N, 8] (see gaussians.PARAMS)
 
-Two parametrizations of the Gaussian tokens and heads (`ModelConfig.parametrization`):
+Two parametrizations of the Gaussian tokens and heads (`TransformerConfig.parametrization`):
 - "paper": N learned tokens; means tanh(h), colours sigmoid(h), rotation sigmoid(h) 2 pi,
   scale |h| + eps (canvas pixels). As in the HyperGS paper.
 - "local" (default): Gaussian k belongs to an anchor a_k on a regular grid (`gaussians.grid_anchors`).
@@ -33,15 +54,14 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-# Fraction of the grid spacing that an initial Gaussian's sigma spans, and the colour gain that then
-# makes a grid of such kernels sum to the image: spacing^2 / (2 pi sigma^2).
-INITIAL_SIGMA = 0.6
-COLOUR_GAIN = 1.0 / (2 * math.pi * INITIAL_SIGMA ** 2)
+from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, grid_anchors
+
 SCALE_EPS = 1e-2
 
 
 @dataclass
-class ModelConfig:
+class TransformerConfig:
+    arch: str = "transformer"
     canvas: int = 128
     patch: int = 8
     clip_frames: int = 4
@@ -61,9 +81,43 @@ class ModelConfig:
         return self.canvas // self.patch
 
 
+@dataclass
+class ConvConfig:
+    arch: str = "conv"
+    stride: int = 4  # input pixels per cell side: one Gaussian per stride x stride pixels
+    stem: int = 24  # channels of the full-resolution convs
+    width: int = 64  # channels at cell resolution
+    blocks: tuple = (4,)  # residual blocks at the cell level, then at each coarser level (x2)
+    widen: int = 1  # channel factor per coarser level
+    offset_range: float = 1.0  # cells a mean may move from its cell centre
+    scale_range: float = 3.0  # |log(scale / initial scale)| bound
+
+    def __post_init__(self):
+        self.blocks = tuple(int(b) for b in self.blocks)
+
+    @property
+    def multiple(self) -> int:
+        """Input sizes must be multiples of this (the coarsest level's cell)."""
+        return self.stride * 2 ** (len(self.blocks) - 1)
+
+    @property
+    def reach(self) -> int:
+        """Input pixels beyond which a pixel cannot change a cell's Gaussian: an upper bound of the
+        receptive field's radius, rounded up to `multiple`. Tiles that overlap by this much encode
+        exactly as one pass does."""
+        radius = 2 + self.stride  # the two full-resolution convs, and the conv down to the cell
+        for level, n in enumerate(self.blocks):
+            cell = self.stride * 2 ** level
+            radius += (2 * n + 1) * cell  # n blocks of two 3x3 convs, the conv down to (or up from) here
+            if level < len(self.blocks) - 1:
+                radius += 2 * cell  # the block on the way back up
+        return -(-radius // self.multiple) * self.multiple
+
+
 PRESETS = {
-    "small": ModelConfig(),
-    "paper": ModelConfig(canvas=256, patch=16, clip_frames=8, temporal_window=4, dim=768, heads=12, ffn=2800,
+    "conv": ConvConfig(),
+    "small": TransformerConfig(),
+    "paper": TransformerConfig(canvas=256, patch=16, clip_frames=8, temporal_window=4, dim=768, heads=12, ffn=2800,
                          st_layers=2, q_layers=4, parametrization="paper", max_gaussians=1000),
 }
 
@@ -109,7 +163,7 @@ class STBlock(nn.Module):
     """Factorized spatio-temporal block: spatial attention per frame, temporal attention per patch
     position within windows of `window` frames, then an FFN; each pre-LN with a residual."""
 
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: TransformerConfig):
         super().__init__()
         self.window = cfg.temporal_window
         self.norm_s, self.spatial = nn.LayerNorm(cfg.dim), Attention(cfg.dim, cfg.heads)
@@ -128,7 +182,7 @@ class STBlock(nn.Module):
 
 
 class QBlock(nn.Module):
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: TransformerConfig):
         super().__init__()
         self.norm_a, self.attn = nn.LayerNorm(cfg.dim), Attention(cfg.dim, cfg.heads)
         self.norm_f, self.ffn = nn.LayerNorm(cfg.dim), FeedForward(cfg.dim, cfg.ffn)
@@ -139,7 +193,7 @@ class QBlock(nn.Module):
 
 
 class HyperGS(nn.Module):
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: TransformerConfig):
         super().__init__()
         if cfg.clip_frames % cfg.temporal_window or cfg.canvas % cfg.patch:
             raise ValueError("clip_frames must be a multiple of temporal_window and canvas of patch")
@@ -232,6 +286,89 @@ class HyperGS(nn.Module):
         return samples.permute(0, 2, 3, 1)
 
 
+class ResBlock(nn.Module):
+    """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity)."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.a = nn.Conv2d(channels, channels, 3, padding=1)
+        self.b = nn.Conv2d(channels, channels, 3, padding=1)
+        nn.init.zeros_(self.b.weight)
+        nn.init.zeros_(self.b.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.b(F.gelu(self.a(F.gelu(x))))
+
+
+class ConvGS(nn.Module):
+    def __init__(self, cfg: ConvConfig):
+        super().__init__()
+        self.cfg = cfg
+        s, c = cfg.stride, cfg.width
+        self.stem = nn.Sequential(nn.Conv2d(3, cfg.stem, 3, padding=1), nn.GELU(),
+                                  nn.Conv2d(cfg.stem, cfg.stem, 3, padding=1), nn.GELU())
+        self.to_cell = nn.Conv2d(cfg.stem, c, s, stride=s)
+        self.cell_pixels = nn.Conv2d(3 * s * s, c, 1)  # the cell's own pixels, linearly
+        widths = [c * cfg.widen ** level for level in range(len(cfg.blocks))]
+        self.down = nn.ModuleList(nn.Conv2d(a, b, 2, stride=2) for a, b in zip(widths, widths[1:]))
+        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w) for _ in range(n))) for w, n in zip(widths, cfg.blocks))
+        self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
+        self.decoder = nn.ModuleList(ResBlock(w) for w in widths[:-1])
+        self.head = nn.Conv2d(c, 8, 1)
+        nn.init.zeros_(self.head.weight)  # start at the grid floor
+        nn.init.zeros_(self.head.bias)
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """Input [B, 3, H, W] (normalised) -> cell features [B, width, H / stride, W / stride]."""
+        h = self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
+        skips = []
+        for level, blocks in enumerate(self.encoder):
+            if level:
+                skips.append(h)
+                h = self.down[level - 1](h)
+            h = blocks(h)
+        for level in reversed(range(len(self.decoder))):
+            skip = skips.pop()
+            h = self.decoder[level](skip + F.interpolate(self.up[level](h), scale_factor=2.0, mode="nearest"))
+        return h
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """frames [B, H, W, 3] in [0, 1], H and W multiples of cfg.multiple -> params [B, N, 8] on the
+        W x H canvas (N = (H / stride) x (W / stride), row-major from the top-left cell)."""
+        cfg = self.cfg
+        s = cfg.stride
+        x = frames.permute(0, 3, 1, 2)
+        h = self.head(self.features((x - 0.5) * 2))  # [B, 8, rows, cols]
+        height, width = x.shape[-2:]
+        rows, cols = h.shape[-2:]
+        ys = (torch.arange(rows, dtype=h.dtype, device=h.device) + 0.5) * s
+        xs = (torch.arange(cols, dtype=h.dtype, device=h.device) + 0.5) * s
+        offset = torch.tanh(h[:, 0:2]) * (cfg.offset_range * s)
+        mean_x = (xs[None, :] + offset[:, 0]) * (2.0 / width) - 1
+        mean_y = (ys[:, None] + offset[:, 1]) * (2.0 / height) - 1
+        r = cfg.scale_range
+        scale = (INITIAL_SIGMA * s) * torch.exp(r * torch.tanh(h[:, 2:4] / r))
+        rotation = h[:, 4:5] * math.pi
+        colour = COLOUR_GAIN * F.avg_pool2d(x, s) + h[:, 5:8]
+        params = torch.cat([mean_x[:, None], mean_y[:, None], scale, rotation, colour], 1)
+        return params.flatten(2).transpose(1, 2)
+
+
+def build_model(config: dict) -> nn.Module:
+    """A network from its config as saved in cards and checkpoints (`model_config`)."""
+    config = dict(config)
+    arch = config.get("arch", "transformer")
+    if arch == "conv":
+        return ConvGS(ConvConfig(**config))
+    if arch == "transformer":
+        return HyperGS(TransformerConfig(**config))
+    raise ValueError(f"unknown network architecture {arch!r}")
+
+
+def model_config(model: nn.Module) -> dict:
+    return asdict(model.cfg)
+
+
 def fourier_features(xy: torch.Tensor, bands: int = 8) -> torch.Tensor:
     """[N, 2] -> [N, 4 * bands] sin/cos of the coordinates at octave frequencies."""
     freqs = (2.0 ** torch.arange(bands, dtype=xy.dtype, device=xy.device)) * math.pi
@@ -241,14 +378,9 @@ def fourier_features(xy: torch.Tensor, bands: int = 8) -> torch.Tensor:
 
 def anchor_inputs(n: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """The anchors and cell size the model takes for N Gaussians per frame (square canvas)."""
-    from .gaussians import grid_anchors
     anchors = torch.from_numpy(grid_anchors(n)).to(device)
     return anchors, torch.tensor([2.0 / math.sqrt(n)], device=device)
 
 
 def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
-
-
-def config_dict(cfg: ModelConfig) -> dict:
-    return asdict(cfg)

@@ -1,10 +1,12 @@
 """Per-frame Gaussian fitting (the 2DGS / GaussianImage baseline) and warm-started refinement.
 
 Every frame of a batch is optimised at once through the batched rasterizer: Adam on unconstrained
-parameters (means = tanh(raw), scales = exp(raw), free rotation and colours). `fit` from scratch
-decays its learning rate over its length (cosine); `refine_params` keeps it constant, so refining for
-K steps passes through the same states as refining for fewer: one run with an `on_step` hook gives
-every shorter refinement too (what the benches time).
+parameters (means in pixels, log scales, rotation, colours), each group with its own step size
+(`StepSizes`); the means' step is a fraction of the cell, the mean spacing of the Gaussians, so the
+same settings mean the same at any resolution and count. `fit` from scratch (FIT_STEPS) decays its
+step sizes over its length (cosine); `refine_params` (REFINE_STEPS, small: the prediction is already
+close) keeps them constant, so refining for K steps passes through the same states as refining for
+fewer: one run with an `on_step` hook gives every shorter refinement too (what the benches time).
 Refinement starts from given parameters; its first and cheapest step is the least-squares colours for
 the given geometry: with opacity 1 the render is linear in the colours, I = A c, so
 c = argmin |A c - y|^2 is solved by conjugate gradients on the normal equations, each iteration one
@@ -13,28 +15,42 @@ rasterizer forward (A c) and one backward (A^T r).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from .render import render_torch
 
-REFINE_LR = 0.005  # Adam's step size after the least-squares colours (refine_params)
+
+@dataclass(frozen=True)
+class StepSizes:
+    """Adam's step sizes per parameter group."""
+    mean_cells: float  # means, in cells (the mean spacing of the Gaussians, in pixels: sqrt(W H / N))
+    log_scale: float
+    rotation: float  # radians
+    colour: float
+
+
+FIT_STEPS = StepSizes(mean_cells=0.25, log_scale=0.02, rotation=0.02, colour=0.02)  # from random values
+REFINE_STEPS = StepSizes(mean_cells=0.02, log_scale=0.005, rotation=0.01, colour=0.002)  # from a prediction
 
 
 def _render(params: torch.Tensor, width: int, height: int) -> torch.Tensor:
     return render_torch(params, width, height, width, height)
 
 
-def _pack(params: torch.Tensor) -> torch.Tensor:
-    raw = params.clone()
-    raw[..., 0:2] = torch.atanh(params[..., 0:2].clamp(-0.999, 0.999))
-    raw[..., 2:4] = torch.log(params[..., 2:4].clamp_min(1e-3))
-    return raw
+def _pack(params: torch.Tensor, width: int, height: int) -> list[torch.Tensor]:
+    """params [..., 8] on a W x H canvas -> leaves: means in pixels, log scales, rotation, colours."""
+    px = torch.tensor([width / 2, height / 2], dtype=params.dtype, device=params.device)
+    return [((params[..., 0:2] + 1) * px).detach().clone(), torch.log(params[..., 2:4].clamp_min(1e-3)).detach(),
+            params[..., 4:5].detach().clone(), params[..., 5:8].detach().clone()]
 
 
-def _unpack(raw: torch.Tensor) -> torch.Tensor:
-    return torch.cat([torch.tanh(raw[..., 0:2]), torch.exp(raw[..., 2:4]), raw[..., 4:]], dim=-1)
+def _unpack(leaves: list[torch.Tensor], width: int, height: int) -> torch.Tensor:
+    means, log_scales, rotation, colours = leaves
+    px = torch.tensor([width / 2, height / 2], dtype=means.dtype, device=means.device)
+    return torch.cat([means / px - 1, torch.exp(log_scales), rotation, colours], dim=-1)
 
 
 def random_init(num_frames: int, n: int, width: int, height: int, seed: int = 0) -> np.ndarray:
@@ -81,33 +97,37 @@ def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations
     return torch.cat([params[..., :5].detach(), c], -1)
 
 
-def fit(target: torch.Tensor, init: torch.Tensor, iters: int, lr: float = 0.02, schedule: str = "cosine",
+def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes = FIT_STEPS, schedule: str = "cosine",
         on_step=None) -> torch.Tensor:
     """Optimise params [T, N, 8] (canvas = the target's W x H) to target [T, H, W, 3] for `iters` Adam
-    steps. schedule: "cosine" (decays to 5 % of lr over `iters`) or "constant".
+    steps. schedule: "cosine" (decays to 5 % over `iters`) or "constant".
     on_step(step, params_fn): called after each step (1-based); params_fn() gives the params then."""
     if schedule not in ("cosine", "constant"):
         raise ValueError(f"fit: unknown schedule {schedule!r}")
     h, w = target.shape[-3:-1]
-    raw = _pack(init.detach()).requires_grad_(True)
-    optimizer = torch.optim.Adam([raw], lr=lr)
-    scheduler = (torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max(1, iters), eta_min=lr * 0.05)
-                 if schedule == "cosine" else None)
+    leaves = [leaf.requires_grad_(True) for leaf in _pack(init.detach(), w, h)]
+    cell = math.sqrt(w * h / max(1, init.shape[-2]))
+    sizes = (steps.mean_cells * cell, steps.log_scale, steps.rotation, steps.colour)
+    optimizer = torch.optim.Adam([{"params": [leaf], "lr": lr} for leaf, lr in zip(leaves, sizes)])
+    scheduler = None
+    if schedule == "cosine":  # each group's step size decays to 5 % of its own
+        scheduler = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, lambda step: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, iters) / max(1, iters))))
     for step in range(iters):
-        loss = torch.mean((_render(_unpack(raw), w, h) - target) ** 2)
+        loss = torch.mean((_render(_unpack(leaves, w, h), w, h) - target) ** 2)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         if scheduler is not None:
             scheduler.step()
         if on_step is not None:
-            on_step(step + 1, lambda: _unpack(raw.detach()))
-    return _unpack(raw.detach())
+            on_step(step + 1, lambda: _unpack([leaf.detach() for leaf in leaves], w, h))
+    return _unpack([leaf.detach() for leaf in leaves], w, h)
 
 
 def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, on_step=None, device="cpu") -> np.ndarray:
     """Warm-started refinement of [T, N, 8] params on a W x H canvas against uint8 frames [T, H, W, 3]:
-    least-squares colours (step 1), then `steps - 1` Adam steps from there at REFINE_LR.
+    least-squares colours (step 1), then `steps - 1` Adam steps from there (REFINE_STEPS, constant).
     on_step(k, params_fn) is called after each of the `steps` steps, k = 1..steps (see `fit`)."""
     if steps < 1:
         raise ValueError(f"refine steps must be >= 1, got {steps}")
@@ -117,5 +137,5 @@ def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, on_step=No
         on_step(1, lambda: refined)
     if steps > 1:
         hook = None if on_step is None else (lambda k, params_fn: on_step(k + 1, params_fn))
-        refined = fit(target, refined, steps - 1, lr=REFINE_LR, schedule="constant", on_step=hook)
+        refined = fit(target, refined, steps - 1, REFINE_STEPS, schedule="constant", on_step=hook)
     return refined.cpu().numpy()

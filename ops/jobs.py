@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hypergs_blender.encode import EncodePlan, split_count
+from ..hypergs_blender.encode import EncodePlan
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.metrics import psnr
@@ -21,8 +21,8 @@ PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measu
 @dataclass
 class EncodeRequest:
     path: str
-    gaussian_count: int
-    grid: int
+    gaussians: int | None  # Gaussians per frame, or None: one per cell x cell source pixels
+    cell: float | None
     start: int = 0
     stop: int | None = None
 
@@ -40,8 +40,8 @@ def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
     progress(done, total) -> False cancels (raises Cancelled)."""
     started = time.perf_counter()
     encoder = make_encoder()
-    n = split_count(request.gaussian_count, request.grid)
-    plan = EncodePlan(request.path, encoder, n, request.grid, start=request.start, stop=request.stop)
+    plan = EncodePlan(request.path, encoder, request.gaussians, None if request.gaussians else request.cell,
+                      start=request.start, stop=request.stop)
     total = len(plan.indices)
     measured = set(np.round(np.linspace(0, total - 1, min(PSNR_FRAMES, total))).astype(int).tolist())
     chunks, values, done = [], [], 0
@@ -51,7 +51,7 @@ def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
             values.append(float(psnr(image[None], frames[i][None] / np.float32(255))[0]))
         chunks.append(params)
         done += len(frames)
-    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, (request.grid, request.grid),
+    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, plan.grid,
                           dict(plan.source, encode_seconds=time.perf_counter() - started))
     return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started, encoder.name)
 

@@ -13,7 +13,7 @@ import re
 import traceback
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..com import linked
@@ -25,7 +25,7 @@ from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
 from . import scene as clip_scene
 from .jobs import EncodeJob, EncodeRequest, describe
-from .props import GAUSSIAN_COUNT, PATCH_GRID
+from .props import CELL_SIZE, GAUSSIAN_COUNT
 
 
 class _EncodeOperator:
@@ -164,7 +164,7 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
     filter_glob: StringProperty(default=";".join("*" + e for e in VIDEO_EXTENSIONS + IMAGE_EXTENSIONS),
                                 options={"HIDDEN"})
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
+    cell_size: FloatProperty(**CELL_SIZE)
 
     def invoke(self, context, event):
         self.use_modal = True
@@ -177,7 +177,7 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
 
     def make_request(self, context):
         self._path = _check_file(self.filepath)
-        return EncodeRequest(self._path, self.gaussian_count, self.patch_grid)
+        return EncodeRequest(self._path, self.gaussian_count or None, self.cell_size)
 
     def apply(self, context, result):
         name = _clip_name(self._path)
@@ -221,7 +221,7 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
     bl_label = "Convert Strip to Gaussians"
 
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
+    cell_size: FloatProperty(**CELL_SIZE)
 
     @classmethod
     def poll(cls, context):
@@ -256,7 +256,7 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
             path = _check_file(bpy.path.abspath(strip.filepath, library=library))
         self._path = path
         self._target = (scene.name, strip.name, int(strip.frame_final_start))
-        return EncodeRequest(path, self.gaussian_count, self.patch_grid, start=first, stop=first + count)
+        return EncodeRequest(path, self.gaussian_count or None, self.cell_size, start=first, stop=first + count)
 
     def apply(self, context, result):
         scene_name, strip_name, frame_start = self._target
@@ -305,7 +305,7 @@ def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, in
 
 
 class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
-    """Encode the clip's source again with the panel's Gaussian count and patch grid (replaces its points)"""
+    """Encode the clip's source again with the panel's Gaussian count or cell size (replaces its points)"""
 
     bl_idname = "hypergs.reencode"
     bl_label = "Re-encode"
@@ -327,7 +327,7 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
         obj = context.object
         s = obj.hypergs
         self._name = obj.name
-        return EncodeRequest(_check_file(s.source), s.gaussian_count, s.patch_grid, start=s.source_start,
+        return EncodeRequest(_check_file(s.source), s.gaussian_count or None, s.cell_size, start=s.source_start,
                              stop=s.source_start + s.num_frames)
 
     def apply(self, context, result):
@@ -609,7 +609,7 @@ def clip_video(obj):
     source = dict(path=s.source, frames=list(range(s.source_start, s.source_start + count)), encoder=s.encoder,
                   encode_seconds=s.encode_seconds, psnr=s.psnr)
     video = points_to_video(points, s.canvas_width, s.canvas_height, s.fps, num_frames=count,
-                            grid=(s.grid, s.grid), source=source)
+                            grid=tuple(s.grid), source=source)
     if video.num_frames != count:
         video.source["frames"] = list(range(s.source_start, s.source_start + video.num_frames))
     return video, len(points["frame"]) - int(frame_counts(video).sum())

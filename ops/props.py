@@ -1,11 +1,11 @@
 """Per-object HyperGS settings (`Object.hypergs`): what the clip is, how it was encoded, its timing."""
 import bpy
-from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (more: sharper, slower)",
-                      default=1000, min=250, max=3000)
-PATCH_GRID = dict(name="Patch Grid", description="Encode the frame as N x N tiles (more: finer detail)",
-                  default=1, min=1, max=5)
+GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (0: from the cell size; more: sharper, slower)",
+                      default=0, min=0, max=1_000_000)
+CELL_SIZE = dict(name="Cell Size", description="Source pixels per Gaussian (one Gaussian per cell x cell pixels; "
+                 "smaller: more Gaussians, sharper, slower)", default=6.0, min=4.0, max=32.0)
 
 
 def _timing_changed(self, context):
@@ -25,7 +25,8 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
                               description="Index of the clip's first frame in the source video")
     num_frames: IntProperty(name="Frames", default=0, min=0)
     gaussians_per_frame: IntProperty(name="Gaussians per Frame", default=0, min=0)
-    grid: IntProperty(name="Encoded Grid", default=1, min=1)
+    grid: IntVectorProperty(name="Cells", size=2, default=(1, 1), min=1,
+                            description="Columns and rows of the cells the Gaussians were predicted on")
     psnr: FloatProperty(name="PSNR", description="Measured at encode time against the source frames (dB)",
                         default=0.0, precision=2)
     encoder: StringProperty(name="Encoder")
@@ -45,7 +46,7 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
                                 description="The .hgs file a linked clip's Gaussians are read from")
     # Settings for the next Re-encode.
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
+    cell_size: FloatProperty(**CELL_SIZE)
 
 
 CLASSES = [HyperGSClipSettings]

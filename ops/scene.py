@@ -154,9 +154,8 @@ def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, en
     s.source_start = source_start
     s.num_frames = video.num_frames
     s.gaussians_per_frame = video.num_gaussians
-    s.grid = video.grid[0]
-    s.gaussian_count = video.num_gaussians  # clamped to the property's range
-    s.patch_grid = video.grid[0]
+    s.grid = video.grid
+    s.gaussian_count = video.num_gaussians
     s.psnr = psnr
     s.encoder = encoder
     s.encode_seconds = seconds
@@ -254,7 +253,7 @@ def refresh_linked(obj) -> None:
     except HyperGSError:
         return
     s.num_frames, s.gaussians_per_frame = reader.num_frames, reader.num_gaussians
-    s.grid = max(1, reader.grid[0])
+    s.grid = [max(1, g) for g in reader.grid]
     s.canvas_width, s.canvas_height, s.fps = reader.canvas_width, reader.canvas_height, reader.fps
     mesh = obj.data
     if obj.mode == "OBJECT" and len(mesh.vertices) == 4 and not mesh.attributes.get("frame"):

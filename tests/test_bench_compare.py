@@ -12,7 +12,8 @@ import pytest
 from conftest import write_video
 from hypergs_blender.bench import common, plots, scale, vs_fit, vs_x265
 from hypergs_blender.commands.cli import build_parser
-from hypergs_blender.encode import FloorEncoder, encode_frames, split_count
+from hypergs_blender.encode import FloorEncoder, encode_frames, frames_layout
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.refine import refine_params
 from hypergs_blender.io.hgs import HgsReader
 
@@ -83,10 +84,17 @@ def test_bpp_at_psnr_and_pairs():
     assert pairs[0]["encode_speed_ratio"] == pytest.approx(2.0)
 
 
-def test_grid_and_counts():
-    assert common.auto_grid(432, 240, 128) == 2 and common.auto_grid(64, 48, 128) == 1 and common.auto_grid(1280, 720, 128) == 6
-    assert split_count(250, 2) == 252 and split_count(249, 2) == 248 and split_count(1000, 2) == 1000 and split_count(3, 2) == 4
-    assert common.parse_size("native") is None and common.parse_size("256") == 256
+def test_frames_specs():
+    assert common.parse_frames("native") == (None, None) and common.parse_frames("256") == (256, None)
+    assert common.parse_frames("crop480") == (None, 480)
+    with pytest.raises(HyperGSError, match="expected a size"):
+        common.parse_frames("big")
+
+
+def test_fit_psnr_at_interpolates_between_rungs():
+    points = [(1.0, 20.0), (10.0, 30.0)]
+    assert vs_fit.fit_psnr_at(math.sqrt(10.0), points) == pytest.approx(25.0)
+    assert vs_fit.fit_psnr_at(0.5, points) is None and vs_fit.fit_psnr_at(20.0, points) is None
 
 
 # ---- refine ----------------------------------------------------------------------------------------------
@@ -95,7 +103,7 @@ def test_refine_ladder_matches_refine_params(tiny_video):
     """The bench takes every K from one refinement run; each K must equal refine_params(K) (this fails
     if refine_params' step size starts to depend on K)."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)
-    params = encode_frames(frames, FloorEncoder(), 16)
+    params = encode_frames(frames, FloorEncoder(), frames_layout(frames, FloorEncoder(), gaussians=16))
     ladder = vs_fit.refine_ladder(params, frames, (1, 4))
     for k, refined, seconds in ladder:
         np.testing.assert_allclose(refined, refine_params(params, frames, k), atol=2e-4)
@@ -110,28 +118,31 @@ def test_refine_ladder_matches_refine_params(tiny_video):
 
 def test_vs_fit_report_shape(tiny_video, tmp_path):
     report = vs_fit.bench_vs_fit([tiny_video], gaussians=(18,), refine_steps=(1, 3), fit_iters=(2, 4, 8),
-                             sizes=("32", "native"), frames=4, encoder="floor", device="cpu", grid=2,
-                             fit_budget=0.0)
+                                 sizes=("32", "crop40", "native"), frames=4, encoder="floor", device="cpu",
+                                 fit_budget=0.0)
     report = json.loads(json.dumps(report))  # JSON-clean
     assert report["bench"] == "vs-fit" and report["machine"]["device"] == "cpu"
     (video,) = report["videos"]
-    square, native = video["sizes"]
-    assert (square["size"], square["width"], square["height"], square["grid"]) == ("32", 32, 32, 1)
-    assert (native["size"], native["width"], native["height"], native["grid"]) == ("native", 64, 48, 2)
-    assert square["rows"][0]["n"] == 18 and native["rows"][0]["n"] == 20  # the nearest multiple of 4 (2x2 grid)
-    for block in (square, native):
+    square, crop, native = video["sizes"]
+    assert [(b["size"], b["width"], b["height"]) for b in video["sizes"]] == [("32", 32, 32), ("crop40", 40, 40),
+                                                                             ("native", 64, 48)]
+    assert square["rows"][0]["n"] == 16 and square["rows"][0]["cells"] == [4, 4]  # the layout nearest 18
+    for block in (square, crop, native):
         (row,) = block["rows"]
         assert block["frames"] == 4 and len(row["feedforward"]["psnr_per_frame"]) == 4
         assert [r["k"] for r in row["refine"]] == [1, 3]
         assert all(r["seconds"] > row["feedforward"]["seconds"] for r in row["refine"])
-        # a zero budget lets the first rung run (it measures the cost per step) and skips the rest
-        assert "psnr" in row["fit"][0] and row["fit"][0]["iters"] == 2
-        assert row["fit"][1:] == [{"iters": 4, "skipped": "budget"}, {"iters": 8, "skipped": "budget"}] or \
-            row["fit"][1]["skipped"] == "reached"
+        for init in ("random", "grid"):
+            rungs = row[f"fit_{init}"]
+            # a zero budget lets the first rung run (it measures the cost per step) and skips the rest
+            assert "psnr" in rungs[0] and rungs[0]["iters"] == 2
+            assert rungs[1:] == [{"iters": 4, "skipped": "budget"}, {"iters": 8, "skipped": "budget"}] or \
+                rungs[1]["skipped"] == "reached"
         assert [m["method"] for m in row["matched"]] == ["feedforward", "refine 1", "refine 3"]
-        assert all(m["bound"] in ("=", "<=", ">=") and m["ratio"] > 0 for m in row["matched"])
-    assert {g["size"] for g in report["summary"]} == {"32", "native"}
-    assert "| 32 (32x32, grid 1) | 18 | feedforward |" in report["table"]
+        assert all(m[init]["bound"] in ("=", "<=", ">=") and m[init]["ratio"] > 0
+                   for m in row["matched"] for init in ("random", "grid"))
+    assert {g["size"] for g in report["summary"]} == {"32", "crop40", "native"}
+    assert "| 32 (32x32) | 16 | feedforward |" in report["table"]
 
 
 def test_vs_fit_stops_once_fitting_reaches_us(tiny_video):
@@ -139,9 +150,10 @@ def test_vs_fit_stops_once_fitting_reaches_us(tiny_video):
                              frames=4, encoder="floor", device="cpu")
     row = report["videos"][0]["sizes"][0]["rows"][0]
     # the grid floor is easy to beat: 30 fitting steps reach it, so the 60-step rung is not run
-    assert row["fit"][0]["psnr"] >= row["feedforward"]["psnr"]
-    assert row["fit"][1] == {"iters": 60, "skipped": "reached"}
-    assert row["matched"][0]["bound"] in ("<=", "=")
+    for init in ("random", "grid"):
+        assert row[f"fit_{init}"][0]["psnr"] >= row["feedforward"]["psnr"]
+        assert row[f"fit_{init}"][1] == {"iters": 60, "skipped": "reached"}
+        assert row["matched"][0][init]["bound"] in ("<=", "=")
 
 
 def test_vs_x265_report_shape(tiny_video):
@@ -174,8 +186,8 @@ def pan_video(tmp_path_factory):
 
 
 def _encode_job(video, out, hold):
-    return scale.run_scale_job({"job": "encode", "video": str(video), "output": str(out), "gaussians": 64, "grid": 1,
-                             "chunk_clips": 2, "encoder": "floor", "device": "cpu", "hold_frames": hold},
+    return scale.run_scale_job({"job": "encode", "video": str(video), "output": str(out), "gaussians": 64,
+                                "chunk_frames": 8, "encoder": "floor", "device": "cpu", "hold_frames": hold},
                             timeout=300)
 
 
@@ -195,11 +207,11 @@ def test_scale_encode_memory_is_bounded(pan_video, tmp_path):
     assert streamed["growth_second_half_mb"] < 0.15 * 72 * frame_mb  # < ~4 MB: bounded by the chunk
     assert held["peak_rss_mb"] - streamed["peak_rss_mb"] > 0.7 * 144 * frame_mb  # 144 held frames = 54 MB
     with HgsReader(tmp_path / "a.hgs") as reader:
-        assert (reader.num_frames, reader.num_gaussians, reader.canvas_width) == (144, 64, 480)
+        assert (reader.num_frames, reader.num_gaussians, reader.canvas_width) == (144, 120, 480)  # 64 clamped: 15 x 8 cells
 
 
 def test_bench_scale_report(tmp_path):
-    report = scale.bench_scale(None, seconds=1, width=160, height=96, gaussians=32, grid=2, chunk_clips=1,
+    report = scale.bench_scale(None, seconds=1, width=160, height=96, gaussians=32, chunk_frames=4,
                             render_width=240, render_height=144, render_frames=3, psnr_frames=2, encoder="floor",
                             device="cpu", keep=str(tmp_path), also_encode_video=True)
     report = json.loads(json.dumps(report))
@@ -207,7 +219,7 @@ def test_bench_scale_report(tmp_path):
     e, r = report["encode"], report["render"]
     assert e["frames"] == 24 and e["fps"] > 0 and e["hgs_bytes"] == (tmp_path / "scale.hgs").stat().st_size
     assert len(e["rss_trace"]) == 1 + 24 // 4 and e["growth_second_half_mb"] is not None
-    assert report["settings"]["gaussians"] == 32
+    assert report["settings"]["gaussians"] == 32 and e["gaussians"] == 28  # 7 x 4 cells
     assert report["encode_video"]["frames"] == 24 and report["encode_video"]["growth_second_half_mb"] is not None
     assert (r["frames"], r["of"], r["width"], r["height"]) == (3, 24, 240, 144)
     assert r["quality"]["psnr_at_source_size"] > 10
@@ -245,4 +257,4 @@ def test_make_plots_writes_pngs_and_tables(tiny_video, tmp_path):
         assert p.stat().st_size > 1000
     assert (tmp_path / "docs" / "vs_fit.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     tables = (bench / "tables.md").read_text()
-    assert "| size | N | method |" in tables and "| video | ours |" in tables
+    assert "| frames | N | method |" in tables and "| video | ours |" in tables

@@ -18,7 +18,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CLIP_NAME = "pan"  # the session's movie: a 432 x 240, 70-frame pan that conftest.make_pan_clip writes
 # The encoder the session converts with: the bundled network (HYPERGS_ENCODER=floor for the no-learning floor).
 ENCODER = "bundled"
-GAUSSIANS = 1000
+CELL = 10.0  # source pixels per Gaussian: 43 x 24 cells on the 432 x 240 clip
+GAUSSIANS = 43 * 24
 RENDER_FRAMES = (1, 35, 70)  # scene frames; the strip starts at frame 1, so source index = frame - 1
 SIZES = ((256, 256), (864, 480))
 PSNR_MARGIN = 0.3  # dB the F12 render may lose to the core's own encode -> render (8-bit PNG, dither)
@@ -57,7 +58,7 @@ def test_errors_are_reported_and_change_nothing(session, case):
 def test_bundled_network_loads_without_torch_or_says_why(session):
     r = step(session, "bundled_encoder")
     if r["has_onnx"]:  # the packaged ONNX model runs on onnxruntime (torch is not importable here)
-        assert r["problem"] is None and r["encoder"] == "OnnxEncoder", r["problem"]
+        assert r["problem"] is None and r["encoder"] == "network-onnx", r["problem"]
     else:
         assert r["problem"].startswith("HyperGSError") and r["raised"] and r["unchanged"], r
 
@@ -72,10 +73,10 @@ def test_cancelled_import_changes_nothing(session):
 def test_import_video(session):
     r = step(session, "import_video")
     assert r["result"] == ["FINISHED"]
-    assert (r["num_frames"], r["gaussians_per_frame"], r["grid"]) == (60, 500, 2)
+    assert (r["num_frames"], r["gaussians_per_frame"], r["grid"]) == (60, 510, [30, 17])  # about 500 on 256 x 144
     assert r["frame_start"] == r["scene_frame_start"] and r["active"] == "sample"
     assert r["camera"] == "HyperGS Camera"  # F12 needs one; the scene had none
-    assert r["display_points"] in (None, 500)
+    assert r["display_points"] in (None, 510)
 
 
 def test_convert_strip_keeps_timing(session):
@@ -146,8 +147,8 @@ def test_edit_current_frame_shows_only_that_frame(session):
 def test_reencode_replaces_points_and_keeps_modifiers(session):
     r = step(session, "reencode")
     assert r["result"] == ["FINISHED"]
-    assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 500, 500, 2)
-    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 500)
+    assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 1620, 1620, [54, 30])  # cells of 8 px
+    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 1620)
     assert r["psnr"] != r["psnr_before"]
     assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
 
@@ -235,7 +236,7 @@ def run_session(zip_path, work, out_path):
         os.environ["HYPERGS_ENCODER"] = "bundled"
         try:
             try:
-                name, error = type(encoder_module.make_encoder()).__name__, None
+                name, error = encoder_module.make_encoder().name, None
             except Exception as e:
                 name, error = None, f"{type(e).__name__}: {e}"
             before = snapshot(bpy)
@@ -282,11 +283,11 @@ def run_session(zip_path, work, out_path):
     def _():
         for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
             bpy.data.objects.remove(o)
-        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), gaussian_count=500, patch_grid=2)
+        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), gaussian_count=500)
         obj = bpy.data.objects["sample"]
         s = obj.hypergs
         out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
-                   grid=s.grid, frame_start=s.frame_start, scene_frame_start=scene.frame_start,
+                   grid=list(s.grid), frame_start=s.frame_start, scene_frame_start=scene.frame_start,
                    camera=scene.camera.name if scene.camera else None,
                    active=bpy.context.view_layer.objects.active.name,
                    display_points=display_points(bpy, obj))
@@ -294,12 +295,12 @@ def run_session(zip_path, work, out_path):
         return out
 
     strip = job.add_movie_strip(bpy, scene, CLIP, frame_start=1, name=CLIP_NAME)
-    reference = encode_video(str(CLIP), encoder, GAUSSIANS, 1)
+    reference = encode_video(str(CLIP), encoder, cell=CELL)
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("convert")
     def _():
-        result = bpy.ops.hypergs.convert_strip(gaussian_count=GAUSSIANS)
+        result = bpy.ops.hypergs.convert_strip(cell_size=CELL)
         obj = bpy.data.objects[CLIP_NAME]
         ctx["obj"] = obj
         s = obj.hypergs
@@ -481,11 +482,11 @@ def run_session(zip_path, work, out_path):
     def _():
         again = ctx["obj"]
         psnr_before = again.hypergs.psnr
-        again.hypergs.gaussian_count, again.hypergs.patch_grid = 500, 2
+        again.hypergs.gaussian_count, again.hypergs.cell_size = 0, 8.0
         result = bpy.ops.hypergs.reencode()
         s = again.hypergs
         return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
-                    grid=s.grid, psnr_before=psnr_before, psnr=s.psnr,
+                    grid=list(s.grid), psnr_before=psnr_before, psnr=s.psnr,
                     modifiers=[m.name for m in again.modifiers], display_points=display_points(bpy, again),
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
@@ -540,8 +541,9 @@ def read_mesh(mesh):
 
 def settings(obj):
     s = obj.hypergs
-    return {k: getattr(s, k) for k in ("is_clip", "source", "num_frames", "gaussians_per_frame", "grid", "psnr",
-                                       "canvas_width", "canvas_height", "fps", "frame_start", "speed")}
+    values = {k: getattr(s, k) for k in ("is_clip", "source", "num_frames", "gaussians_per_frame", "psnr",
+                                         "canvas_width", "canvas_height", "fps", "frame_start", "speed")}
+    return dict(values, grid=list(s.grid))
 
 
 def set_position_group(bpy, offset):

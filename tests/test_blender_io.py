@@ -407,7 +407,7 @@ def run_session(zip_path, work, out_path):
         rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
         write_image(folder / f"frame_{i + 1:04d}.png", rgb)
     (folder / "notes.txt").write_text("not a frame")
-    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250, 1)
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250)
 
     def compare(obj, first):
         p, _ = mesh_params(obj)

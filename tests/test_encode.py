@@ -1,60 +1,109 @@
+import math
+
 import numpy as np
 import pytest
 
 from hypergs_blender.commands.cli import main
-from hypergs_blender.io.clips import load_clip
-from hypergs_blender.encode import Cancelled, EncodePlan, FloorEncoder, encode_frames, encode_video
+from hypergs_blender.encode import (MAX_CELL, Cancelled, EncodePlan, FloorEncoder, encode_frames, encode_video,
+                                    frames_layout, plan_layout)
 from hypergs_blender.errors import HyperGSError
-from hypergs_blender.metrics import psnr
-from hypergs_blender.render import render_frames
+from hypergs_blender.io.clips import load_clip
 from hypergs_blender.io.frames import read_frames
+from hypergs_blender.metrics import psnr
+from hypergs_blender.render import render_frames, render_params
+
+
+def test_layout_is_a_density():
+    layout = plan_layout(1280, 720, 4, cell=8)
+    assert (layout.cols, layout.rows, layout.count) == (160, 90, 14400) and layout.cell == pytest.approx(8)
+    assert (layout.work_width, layout.work_height) == (640, 360) and not layout.note
+    # a count becomes the cell size that gives about that many, on the frame's aspect
+    by_count = plan_layout(1280, 720, 4, gaussians=14000)
+    assert abs(by_count.count - 14000) < 300 and by_count.cols / by_count.rows == pytest.approx(16 / 9, rel=0.02)
+    assert plan_layout(256, 256, 4, gaussians=1000).count == 32 * 32
+    # more Gaussians always means a finer grid (the encoder sees more of the frame)
+    counts = [plan_layout(640, 360, 4, gaussians=n).count for n in (250, 1000, 3000, 10000)]
+    assert counts == sorted(counts) and len(set(counts)) == 4
+    # multiples of a granule (a network whose coarsest level spans 4 cells)
+    coarse = plan_layout(1000, 600, 4, cell=6, granule=4)
+    assert coarse.cols % 4 == 0 and coarse.rows % 4 == 0
+
+
+def test_layout_outside_the_trained_range_is_clamped_with_a_note():
+    fine = plan_layout(256, 256, 4, gaussians=100_000)
+    assert fine.count == 64 * 64 and "outside the trained range" in fine.note and "100000 Gaussians" in fine.note
+    coarse = plan_layout(1920, 1080, 4, gaussians=10)
+    assert coarse.cell == pytest.approx(MAX_CELL, rel=0.05) and "at most 32 px" in coarse.note
+    with pytest.raises(HyperGSError, match="at least 1"):
+        plan_layout(64, 64, 4, gaussians=0)
+    with pytest.raises(HyperGSError, match="positive"):
+        plan_layout(64, 64, 4, cell=-2)
+    with pytest.raises(HyperGSError, match="not both"):
+        plan_layout(64, 64, 4, gaussians=10, cell=8)
+
+
+def test_floor_reproduces_flat_and_smooth_frames():
+    """The grid floor: flat regions come back flat (no lattice of blobs), away from the frame's edges."""
+    flat = np.full((1, 96, 128, 3), 140, np.uint8)
+    for cell in (4, 6, 8):
+        layout = frames_layout(flat, FloorEncoder(), cell=cell)
+        out = render_params(encode_frames(flat, FloorEncoder(), layout), 128, 96, 128, 96)[0]
+        inner = out[12:-12, 12:-12]
+        assert abs(inner.mean() * 255 - 140) < 0.3 and inner.std() * 255 < 0.5, cell
+
+
+def test_encode_frames_stretches_back_exactly():
+    """Working size 17 x 9 cells on a 100 x 50 frame: the Gaussians are stretched by the non-uniform
+    factors; rendered at the frame's size they match the working-size render resized."""
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (2, 50, 100, 3), dtype=np.uint8)
+    layout = frames_layout(frames, FloorEncoder(), gaussians=150)
+    params = encode_frames(frames, FloorEncoder(), layout)
+    assert params.shape == (2, layout.count, 8)
+    # means are at the cell centres of the frame, whatever the working size
+    xs = np.unique(np.round(params[0, :, 0], 5))
+    np.testing.assert_allclose(xs, (np.arange(layout.cols) + 0.5) / layout.cols * 2 - 1, atol=1e-5)
+    # scales: sigma 0.6 cells in each direction of the frame
+    np.testing.assert_allclose(sorted(params[0, 0, 2:4]), sorted([0.6 * 100 / layout.cols, 0.6 * 50 / layout.rows]),
+                               rtol=1e-4)
 
 
 def test_encode_video_chunks_and_metadata(moving_video):
     calls = []
-    video = encode_video(moving_video, FloorEncoder(canvas=32, clip_frames=4), 64, chunk_clips=1,
+    video = encode_video(moving_video, FloorEncoder(), cell=6, chunk_frames=4,
                          progress=lambda done, total: calls.append((done, total)))
-    assert video.params.shape == (12, 64, 8)
+    assert video.params.shape == (12, 88, 8) and video.grid == (11, 8)
     assert (video.canvas_width, video.canvas_height, video.fps) == (64, 48, 12.0)
     assert calls == [(0, 12), (4, 12), (8, 12), (12, 12)]
-    # the floor reproduces the frames roughly (a blurred version)
     frames, _, _ = read_frames(moving_video)
-    assert psnr(render_frames(video, 64, 48), frames / 255.0).mean() > 18
+    assert psnr(render_frames(video, 64, 48), frames / 255.0).mean() > 18  # a blurred version
 
 
 def test_chunking_does_not_change_the_result(moving_video):
-    encoder = FloorEncoder(canvas=32, clip_frames=4)
-    one = encode_video(moving_video, encoder, 64, chunk_clips=1)
-    three = encode_video(moving_video, encoder, 64, chunk_clips=3)
+    one = encode_video(moving_video, FloorEncoder(), cell=8, chunk_frames=1)
+    three = encode_video(moving_video, FloorEncoder(), cell=8, chunk_frames=5)
     np.testing.assert_array_equal(one.params, three.params)
 
 
-def test_grid_tiles_cover_the_frame(moving_video):
-    frames, _, _ = read_frames(moving_video, 4)
-    params = encode_frames(frames, FloorEncoder(canvas=16, clip_frames=4), 4 * 36, grid=2)
-    assert params.shape == (4, 144, 8)
-    # every tile's Gaussians stay in its quarter of the frame
-    quarters = (params[0, :, 0] > 0).astype(int) + 2 * (params[0, :, 1] > 0)
-    assert np.bincount(quarters).tolist() == [36, 36, 36, 36]
-    with pytest.raises(HyperGSError, match="split evenly"):
-        encode_frames(frames, FloorEncoder(canvas=16, clip_frames=4), 150, grid=2)
-
-
 def test_cancel_raises_and_plan_knows_the_output(moving_video):
-    plan = EncodePlan(moving_video, FloorEncoder(canvas=32, clip_frames=4), 64, start=2, stop=10)
+    plan = EncodePlan(moving_video, FloorEncoder(), gaussians=64, start=2, stop=10)
     assert plan.indices == list(range(2, 10)) and (plan.width, plan.height) == (64, 48)
+    assert plan.layout.count == math.prod(plan.grid)
     with pytest.raises(Cancelled):
-        list(plan.chunks(progress=lambda done, total: done < 4, chunk_clips=1))
+        list(plan.chunks(progress=lambda done, total: done < 4, chunk_frames=4))
 
 
 @pytest.mark.parametrize("suffix", [".hgs", ".npz"])
-def test_encode_command_writes_a_clip(moving_video, tmp_path, suffix):
+def test_encode_command_writes_a_clip(moving_video, tmp_path, suffix, capsys):
     out = tmp_path / f"clip{suffix}"
-    main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "250"])
+    main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192"])
     video = load_clip(out)
-    assert video.params.shape == (12, 250, 8)
+    assert video.params.shape == (12, 192, 8) and video.grid == (16, 12)
     main(["render", str(out), "-o", str(tmp_path / "frames"), "--width", "32"])
     assert len(list((tmp_path / "frames").glob("frame_*.png"))) == 12
+    main(["encode", str(moving_video), "-o", str(tmp_path / "dense.npz"), "--encoder", "floor", "--gaussians", "5000"])
+    assert "outside the trained range" in capsys.readouterr().err  # clamped, and said so
+    assert load_clip(tmp_path / "dense.npz").num_gaussians == 16 * 12
 
 
 def test_encode_command_errors_leave_no_file(tmp_path, capsys):

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from hypergs_blender.errors import HyperGSError
-from hypergs_blender.gaussians import (GaussianVideo, covariance, grid_anchors, inverse_covariance, merge_tiles,
+from hypergs_blender.gaussians import (GaussianVideo, covariance, grid_anchors, inverse_covariance,
                                        render_inputs, stretch_params)
 from hypergs_blender.io.npz import load_npz, save_npz
 from hypergs_blender.raster import rasterize_reference
@@ -79,17 +79,6 @@ def test_stretch_params_renders_like_a_stretch():
     img_a = rasterize_reference(*a, 64, 24)
     img_b = rasterize_reference(*b, 64, 24)
     np.testing.assert_allclose(img_a.numpy(), img_b.numpy(), atol=2e-5)
-
-
-def test_merge_tiles_places_each_tile():
-    tile = np.zeros((2, 2, 1, 1, 8), np.float32)
-    tile[..., 2:4] = 4.0  # 4 canvas px on a 16 px canvas
-    merged = merge_tiles(tile, (2, 2), 100, 60, canvas=16)
-    # tile centres land at the quarter points of the frame
-    np.testing.assert_allclose(merged[0, :, 0], [-0.5, 0.5, -0.5, 0.5], atol=1e-6)
-    np.testing.assert_allclose(merged[0, :, 1], [-0.5, -0.5, 0.5, 0.5], atol=1e-6)
-    # a tile 50 x 30 px drawn from a 16 px canvas: sigma 4 -> 12.5 px in x and 7.5 px in y
-    assert sorted(merged[0, 0, 2:4].tolist()) == pytest.approx([7.5, 12.5], rel=1e-5)
 
 
 @pytest.mark.parametrize("n, aspect", [(1, 1.0), (250, 1.0), (1000, 1.0), (3000, 1.0), (1000, 16 / 9)])

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -5,7 +6,10 @@ import pytest
 import torch
 
 from hypergs_blender.training.optim import Lamb
-from hypergs_blender.model import PRESETS, HyperGS, ModelConfig, anchor_inputs, apply_rope, count_parameters, rope_angles
+from hypergs_blender.encode import FloorEncoder
+from hypergs_blender.model import (PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs, apply_rope,
+                                   build_model, count_parameters, model_config, rope_angles)
+from hypergs_blender.network import torch_encoder
 from hypergs_blender.training.regularizers import AdaptiveRegularizer, effective_rank
 
 TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
@@ -14,7 +18,7 @@ TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=
 @pytest.mark.parametrize("parametrization", ["local", "paper"])
 def test_output_shapes_and_ranges(parametrization):
     torch.manual_seed(0)
-    model = HyperGS(ModelConfig(**TINY, parametrization=parametrization, max_gaussians=64))
+    model = HyperGS(TransformerConfig(**TINY, parametrization=parametrization, max_gaussians=64))
     frames = torch.rand(2, 4, 32, 32, 3)
     anchors, cell = anchor_inputs(50)
     out = model(frames, anchors, cell)
@@ -27,7 +31,7 @@ def test_output_shapes_and_ranges(parametrization):
 
 
 def test_local_model_starts_at_the_grid_floor():
-    model = HyperGS(ModelConfig(**TINY))
+    model = HyperGS(TransformerConfig(**TINY))
     frames = torch.full((1, 4, 32, 32, 3), 0.5)
     anchors, cell = anchor_inputs(16)
     out = model(frames, anchors, cell)
@@ -39,6 +43,10 @@ def test_local_model_starts_at_the_grid_floor():
 def test_presets():
     assert 40e6 < count_parameters(HyperGS(PRESETS["paper"])) < 55e6
     assert count_parameters(HyperGS(PRESETS["small"])) < 5e6
+    assert count_parameters(ConvGS(PRESETS["conv"])) < 2e6
+    for name, cfg in PRESETS.items():  # what cards and checkpoints store builds the same network
+        model = build_model(model_config(build_model(dataclasses.asdict(cfg))))
+        assert model.cfg == cfg, name
 
 
 @pytest.mark.parametrize("k", [1, 2])
@@ -93,18 +101,71 @@ def test_lamb_step_matches_hand_computation():
     torch.testing.assert_close(w.detach(), expected, atol=1e-5, rtol=0)
 
 
-def test_onnx_matches_torch(tmp_path):
-    from hypergs_blender.network import OnnxEncoder, TorchEncoder
-    from hypergs_blender.training.export import export_onnx
-    torch.manual_seed(0)
-    model = HyperGS(ModelConfig(**TINY))
+def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
+    """A conv network with every block and the head away from their zero initialisation."""
+    torch.manual_seed(seed)
+    model = ConvGS(cfg)
     with torch.no_grad():
-        model.head.weight.normal_(0, 0.05)  # away from the zero-initialised head
+        model.head.weight.normal_(0, 0.05)
+        for block in [b for level in model.encoder for b in level] + list(model.decoder):
+            block.b.weight.normal_(0, 0.05)
+    return model.eval()
+
+
+def test_conv_model_starts_at_the_grid_floor():
+    frames = np.random.default_rng(0).random((2, 24, 40, 3), dtype=np.float32)
+    with torch.no_grad():
+        out = ConvGS(ConvConfig()).eval()(torch.from_numpy(frames)).numpy()
+    np.testing.assert_allclose(out, FloorEncoder().predict(frames), atol=1e-5)
+
+
+@pytest.mark.parametrize("blocks", [(2,), (1, 1, 1)])
+def test_conv_reach_bounds_the_receptive_field(blocks):
+    """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    model = random_conv(cfg)
+    size = 2 * cfg.reach + 4 * cfg.multiple
+    x = torch.rand(1, size, size, 3)
+    cell = size // cfg.stride // 2  # a cell in the middle
+    centre = (cell + 0.5) * cfg.stride
+    with torch.no_grad():
+        base = model(x).reshape(size // cfg.stride, size // cfg.stride, 8)[cell, cell]
+        far, near = x.clone(), x.clone()
+        far[0, :, :int(centre - cfg.reach - cfg.stride)] = 0  # every column beyond the reach on the left
+        near[0, :, int(centre - 2 * cfg.stride)] = 0  # one column in the next cell but one
+        out_far = model(far).reshape(size // cfg.stride, size // cfg.stride, 8)[cell, cell]
+        out_near = model(near).reshape(size // cfg.stride, size // cfg.stride, 8)[cell, cell]
+    torch.testing.assert_close(out_far, base, atol=1e-6, rtol=0)
+    assert (out_near - base).abs().max() > 1e-6
+
+
+@pytest.mark.parametrize("blocks", [(4,), (1, 1, 1)])
+def test_tiles_give_exactly_one_pass(blocks, monkeypatch):
+    """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
+    import hypergs_blender.network as network
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    model = random_conv(cfg)
+    encoder = torch_encoder(model)
+    width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
+    frames = np.random.default_rng(1).random((2, 8 * cfg.multiple, width, 3), dtype=np.float32)
+    with torch.no_grad():
+        whole = model(torch.from_numpy(frames)).numpy()
+    encoder.tile = 2 * cfg.reach + 2 * cfg.multiple
+    assert len(network.tiles(frames.shape[2], cfg.reach, cfg.multiple, encoder.tile)) > 2
+    columns, _ = encoder.tile_borders(frames.shape[2], frames.shape[1])
+    assert columns and all(c % cfg.multiple == 0 for c in columns)
+    np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
+
+
+def test_onnx_matches_torch(tmp_path):
+    from hypergs_blender.network import onnx_encoder
+    from hypergs_blender.training.export import card_of, export_onnx
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,)))
     export_onnx(model, tmp_path / "m.onnx")
-    onnx_encoder = OnnxEncoder(tmp_path / "m.onnx", {"config": {"canvas": 32, "clip_frames": 4}})
-    torch_encoder = TorchEncoder(model)
-    frames = np.random.default_rng(0).random((3, 4, 32, 32, 3), dtype=np.float32)
-    for n in (20, 300):  # one exported graph serves any Gaussian count
-        a, b = onnx_encoder.predict(frames, n), torch_encoder.predict(frames, n)
-        assert a.shape == (3, 4, n, 8)
+    onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
+    rng = np.random.default_rng(0)
+    for shape in ((3, 32, 32, 3), (1, 40, 96, 3)):  # one exported graph serves any size, hence any count
+        frames = rng.random(shape, dtype=np.float32)
+        a, b = onnx.predict(frames), torch_.predict(frames)
+        assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
         np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)

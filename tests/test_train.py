@@ -8,7 +8,7 @@ import torch
 from hypergs_blender.commands import train as train_commands
 from hypergs_blender.render import render_torch
 from hypergs_blender.training import train
-from hypergs_blender.model import HyperGS, ModelConfig, anchor_inputs
+from hypergs_blender.model import ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs
 from hypergs_blender.training.regularizers import AdaptiveRegularizer
 from hypergs_blender.training.optim import Lamb, parameter_groups
 
@@ -31,7 +31,7 @@ def test_tiny_model_overfits_one_clip(parametrization):
         clip[0, t, 8:16, 4 + 3 * t:14 + 3 * t] = [0.9, 0.2, 0.1]
         clip[0, t, 20:28, 18:26] = [0.1, 0.3, 0.9]
     frames = torch.from_numpy(clip)
-    model = HyperGS(ModelConfig(**TINY, parametrization=parametrization, max_gaussians=64))
+    model = HyperGS(TransformerConfig(**TINY, parametrization=parametrization, max_gaussians=64))
     optimizer = Lamb(parameter_groups(model), lr=1e-2)
     for group in optimizer.param_groups:
         group["lr"] = 1e-2 * group["lr_scale"]
@@ -50,28 +50,68 @@ def test_tiny_model_overfits_one_clip(parametrization):
     assert psnrs[-1] > psnrs[0] + 5, (psnrs[0], psnrs[-1])
 
 
-def training_args(out, steps, minutes=None):
+def test_tiny_conv_model_overfits_one_frame():
+    torch.manual_seed(0)
+    frame = np.zeros((1, 32, 32, 3), np.float32)
+    frame[..., 0] = np.linspace(0, 1, 32)[None, None, :]
+    frame[0, 8:16, 4:14] = [0.9, 0.2, 0.1]
+    frame[0, 20:28, 18:26] = [0.1, 0.3, 0.9]
+    frames = torch.from_numpy(frame)
+    model = ConvGS(ConvConfig(width=16, stem=8, blocks=(2,)))
+    optimizer = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    psnrs = []
+    for step in range(150):
+        mse = torch.mean((render_torch(model(frames), 32, 32, 32, 32) - frames) ** 2)
+        optimizer.zero_grad()
+        mse.backward()
+        optimizer.step()
+        psnrs.append(train.psnr_db(mse.item()))
+    assert psnrs[-1] > psnrs[0] + 5, (psnrs[0], psnrs[-1])
+
+
+def training_args(out, steps, preset, minutes=None):
     parser = argparse.ArgumentParser()
     train_commands.add_commands(parser.add_subparsers())
-    argv = ["train", "--out", str(out), "--data", "procedural:1", "--steps", str(steps), "--batch", "2",
-            "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000", "--checkpoint-every", "2",
-            "--warmup", "2"] + ([] if minutes is None else ["--minutes", str(minutes)])
+    argv = ["train", "--out", str(out), "--preset", preset, "--data", "procedural:1", "--steps", str(steps),
+            "--batch", "2", "--size", "32", "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000",
+            "--checkpoint-every", "2", "--warmup", "2"] + ([] if minutes is None else ["--minutes", str(minutes)])
     return parser.parse_args(argv)
 
 
-def test_resume_continues_exactly(tmp_path, monkeypatch):
-    monkeypatch.setitem(train.PRESETS, "small", ModelConfig(**TINY))
+@pytest.mark.parametrize("preset", ["conv", "small"])
+def test_resume_continues_exactly(tmp_path, monkeypatch, preset):
+    monkeypatch.setitem(train.PRESETS, "small", TransformerConfig(**TINY))
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
-    train.run(training_args(tmp_path / "straight", 6))
-    train.run(training_args(tmp_path / "resumed", 6, minutes=0))  # interrupted after its first step
-    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)["step"] == 1
-    train.run(training_args(tmp_path / "resumed", 6))
-    straight = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=False)
-    resumed = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)
-    assert resumed["step"] == straight["step"] == 6
+    train.run(training_args(tmp_path / "straight", 6, preset))
+    train.run(training_args(tmp_path / "resumed", 6, preset, minutes=0))  # interrupted after its first step
+    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)["step"] == 1
+    train.run(training_args(tmp_path / "resumed", 6, preset))
+    straight = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=True)
+    resumed = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)
+    assert resumed["step"] == straight["step"] == 6 and resumed["cpu_seconds"] > 0
     for k, v in straight["model"].items():
         torch.testing.assert_close(resumed["model"][k], v, rtol=0, atol=0, msg=k)
-    torch.testing.assert_close(resumed["regularizer"], straight["regularizer"], rtol=0, atol=0)
+    if preset == "small":
+        torch.testing.assert_close(resumed["regularizer"], straight["regularizer"], rtol=0, atol=0)
     records = [json.loads(line) for line in (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in records if "loss" in r] == [1, 2, 3, 4, 5, 6]  # each step logged once
     assert [r["step"] for r in records if "eval" in r] == [6]
+    cpu = [r["cpu"] for r in records if "loss" in r]
+    assert all(r["rss_mb"] > 0 for r in records if "loss" in r) and cpu == sorted(cpu) and cpu[-1] > 0
+
+
+def test_evaluator_encodes_as_the_runtime_does(tmp_path):
+    """At initialisation the conv network is the grid floor: the trainer's evaluation must then give the
+    floor's PSNR through encode.encode_frames (the same resize, layout and rendering)."""
+    from hypergs_blender.encode import FloorEncoder, encode_frames, frames_layout
+    from hypergs_blender.metrics import psnr
+    from hypergs_blender.render import render_params
+    with pytest.warns(UserWarning, match="prepare-data"):  # no held-out photos here: procedural clips
+        evaluator = train.Evaluator(tmp_path)
+    results = evaluator(ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))).eval(), torch.device("cpu"))
+    frames = evaluator.sets["val"]
+    for cell, n in ((8, 1024), (4, 4096)):
+        layout = frames_layout(frames, FloorEncoder(), cell=cell)
+        floor = render_params(encode_frames(frames, FloorEncoder(), layout), 256, 256, 256, 256)
+        assert results[f"val_n{n}"] == pytest.approx(float(np.mean(psnr(floor, frames / 255))), abs=0.01)

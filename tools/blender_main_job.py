@@ -3,7 +3,7 @@ add the bundled sample video as a sequencer strip, convert it with `bpy.ops.hype
 render frames with F12 to PNG and print their PSNR against the source frames.
 
     .venv/bin/python tools/blender_main_job.py [--video PATH] [--size WxH] [--frames 1,20,40]
-                                               [--gaussians 1000] [--grid 1] [--encoder floor|bundled]
+                                               [--gaussians N | --cell C] [--encoder floor|bundled]
 
 Runs with the `bpy` wheel of the venv (no Blender install needed). PNGs go to runs/main_job/.
 The work is in hypergs_blender/bench/blender.py.

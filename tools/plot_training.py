@@ -1,6 +1,7 @@
-"""PSNR against training wall time from a run's log.jsonl -> docs/training_curve.png (+ a CSV).
+"""A run's log.jsonl -> docs/training_curve.png (+ a CSV): evaluation PSNR against training CPU hours
+(the process's CPU time, so other jobs on the machine do not stretch it), and resident memory.
 
-    .venv/bin/python tools/plot_training.py runs/small [runs/other ...] [--out docs/training_curve.png]
+    .venv/bin/python tools/plot_training.py runs/conv [runs/other ...] [--out docs/training_curve.png]
 """
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def read_evals(run: Path) -> list[dict]:
-    return [r for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if "eval" in r]
+def read_log(run: Path) -> tuple[list[dict], list[dict]]:
+    """(evaluation records, step records) of a run."""
+    records = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
+    return [r for r in records if "eval" in r], [r for r in records if "loss" in r]
 
 
 def main() -> None:
@@ -23,21 +26,26 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, default=Path("docs/training_curve.png"))
     args = parser.parse_args()
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    rows = ["run,step,wall_minutes,metric,psnr"]
+    fig, (ax, mem) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
+    rows = ["run,step,cpu_hours,wall_hours,metric,psnr"]
     for run in args.runs:
-        evals = read_evals(run)
+        evals, steps = read_log(run)
         for metric in sorted(evals[0]["eval"]) if evals else []:
-            if not metric.startswith("dev_") and not metric.startswith("val_"):
-                continue
-            minutes = [r["wall"] / 60 for r in evals]
-            values = [r["eval"][metric] for r in evals]
-            ax.plot(minutes, values, marker="o", ms=3, label=f"{run.name}: {metric}")
-            rows += [f"{run.name},{r['step']},{r['wall'] / 60:.2f},{metric},{r['eval'][metric]}" for r in evals]
-    ax.set_xlabel("training wall time (minutes, 2 CPU cores)")
-    ax.set_ylabel("PSNR (dB) at the 128 px canvas")
+            hours = [r["cpu"] / 3600 for r in evals]
+            ax.plot(hours, [r["eval"][metric] for r in evals], marker="o", ms=3, label=f"{run.name}: {metric}")
+            rows += [f"{run.name},{r['step']},{r['cpu'] / 3600:.3f},{r['wall'] / 3600:.3f},{metric},{r['eval'][metric]}"
+                     for r in evals]
+        mem.plot([r["cpu"] / 3600 for r in steps], [r["rss_mb"] for r in steps], lw=1, label=run.name)
+    ax.set_xlabel("training CPU hours (process time)")
+    ax.set_ylabel("PSNR (dB), 256 x 256 frames")
+    ax.set_title("held-out photos (val) and the dev videos (reporting only); n = Gaussians per frame", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, ncol=2)
+    mem.set_xlabel("training CPU hours")
+    mem.set_ylabel("resident memory (MiB)")
+    mem.set_ylim(bottom=0)
+    mem.grid(alpha=0.3)
+    mem.legend(fontsize=7)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)

@@ -36,7 +36,7 @@ class HYPERGS_PT_clip(bpy.types.Panel):
             self.draw_linked(obj, layout.box())
         info = layout.column(align=True)
         for label, value in (("Frames", f"{s.num_frames}  ({s.canvas_width} x {s.canvas_height}, {s.fps:.3g} fps)"),
-                             ("Gaussians per Frame", f"{s.gaussians_per_frame}  (grid {s.grid} x {s.grid})"),
+                             ("Gaussians per Frame", f"{s.gaussians_per_frame}  ({s.grid[0]} x {s.grid[1]} cells)"),
                              ("PSNR", f"{s.psnr:.2f} dB"),
                              ("Encoder", f"{s.encoder}, {s.encode_seconds:.1f} s")):
             row = info.row()
@@ -53,7 +53,7 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         layout.operator(HYPERGS_OT_edit_frame.bl_idname, icon="EDITMODE_HLT")
         box = layout.box()
         box.prop(s, "gaussian_count")
-        box.prop(s, "patch_grid")
+        box.prop(s, "cell_size")
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
     @staticmethod

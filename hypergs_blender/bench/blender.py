@@ -231,8 +231,8 @@ def main_job(argv=None) -> int:
     parser.add_argument("--video", default=str(SAMPLE), help="video to convert (default: the bundled sample)")
     parser.add_argument("--size", help="render size WxH (default: the video's)")
     parser.add_argument("--frames", help="scene frames to render, comma-separated (default: 5 spread)")
-    parser.add_argument("--gaussians", type=int, default=1000)
-    parser.add_argument("--grid", type=int, default=1)
+    parser.add_argument("--gaussians", type=int, default=0, help="Gaussians per frame (default: the cell size's)")
+    parser.add_argument("--cell", type=float, default=None, help="cell size in source pixels (default: the add-on's)")
     parser.add_argument("--encoder", choices=("floor", "bundled"),
                         default=os.environ.get("HYPERGS_ENCODER", DEFAULT_ENCODER))
     parser.add_argument("--out", default=str(ROOT / "runs" / "main_job"))
@@ -260,7 +260,8 @@ def main_job(argv=None) -> int:
         scene.render.resolution_percentage = 100
         scene.frame_start, scene.frame_end = int(strip.frame_final_start), int(strip.frame_final_end) - 1
         t = time.perf_counter()
-        bpy.ops.hypergs.convert_strip(gaussian_count=args.gaussians, patch_grid=args.grid)
+        options = dict(gaussian_count=args.gaussians) | ({"cell_size": args.cell} if args.cell else {})
+        bpy.ops.hypergs.convert_strip(**options)
         convert_s = time.perf_counter() - t
         obj = bpy.context.view_layer.objects.active
         s = obj.hypergs

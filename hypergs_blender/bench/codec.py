@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import encode_frames
+from ..encode import encode_frames, frames_layout
 from ..gaussians import GaussianVideo
 from ..io.codec import MODES, order_stability
 from ..io.frames import read_frames
@@ -32,7 +32,7 @@ def bench_codec(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=DEF
     encode frames/s (encoder + .hgs write), decode frames/s (.hgs read + render), plus the .hgs size with
     each forced residual mode and the Gaussian-order stability. position_bits: also code each bit depth
     with the means (x, y) at this many bits (rows with `bits` as 8 values). encoder: 'network' | 'floor'
-    or an object with predict()/canvas/clip_frames/name."""
+    or an encoder object."""
     if isinstance(encoder, str):
         encoder = resolve_encoder(encoder)
     encoder_name = encoder.name
@@ -67,9 +67,10 @@ def bench_codec(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=DEF
                     "encode_fps": t / ref["encode_s"], "decode_fps": t / ref["decode_s"]})
             for n in gaussians:
                 say(f"{Path(path).name}: {n} Gaussians")
-                render_frames(GaussianVideo(encode_frames(frames[:1], encoder, n, 1), w, h), w, h)  # warm-up (JIT)
+                layout = frames_layout(frames, encoder, gaussians=n)
+                render_frames(GaussianVideo(encode_frames(frames[:1], encoder, layout), w, h), w, h)  # warm-up (JIT)
                 started = time.perf_counter()
-                params = encode_frames(frames, encoder, n, 1)
+                params = encode_frames(frames, encoder, layout)
                 encoder_s = time.perf_counter() - started
                 video = GaussianVideo(params, w, h, info.fps, (1, 1), {"path": str(path), "frames": indices})
                 started = time.perf_counter()

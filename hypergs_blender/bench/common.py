@@ -97,33 +97,37 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def parse_size(text) -> int | None:
-    """'native' -> None (the video's own W x H, patch grid), '256' -> 256 (short-side resize + crop)."""
-    if text is None or str(text).lower() == "native":
-        return None
-    size = int(text)
-    if size < 16:
-        raise HyperGSError(f"size {size} is too small")
-    return size
+def parse_frames(text) -> tuple[int | None, int | None]:
+    """A frames spec -> (size, crop): '256' short-side resize + crop to 256 x 256, 'crop480' a 480 x 480
+    centre crop at the video's own resolution, 'native' whole frames."""
+    text = str(text).lower()
+    if text == "native":
+        return None, None
+    crop = text.startswith("crop")
+    try:
+        value = int(text[4:] if crop else text)
+    except ValueError:
+        raise HyperGSError(f"frames {text!r}: expected a size (256), 'cropN' (crop480) or 'native'") from None
+    if value < 16:
+        raise HyperGSError(f"frames {text!r}: {value} px is too small")
+    return (None, value) if crop else (value, None)
 
 
-def auto_grid(width: int, height: int, canvas: int) -> int:
-    """The G x G patch grid whose tiles are closest to the encoder's canvas on the short side."""
-    return max(1, round(min(width, height) / canvas))
-
-
-def load_frames(path, frames: int | None, size: int | None, start: int = 0):
+def load_frames(path, frames: int | None, size: int | None, start: int = 0, crop: int | None = None):
     """Consecutive frames [start, start + frames) (all when None) as uint8 [T, H, W, 3]: short-side
-    resized and centre-cropped to size x size, or native (cropped to even W and H, for yuv420p)."""
+    resized and centre-cropped to size x size, or a crop x crop centre crop, or whole; even W and H
+    (for yuv420p)."""
     from ..io.frames import probe, read_frames
     info = probe(path)
     start = min(start, info.num_frames - 1)
     stop = None if frames is None else start + frames
     video, _, indices = read_frames(path, None, start, stop, size=size)
-    if size is None:
-        h, w = video.shape[1] // 2 * 2, video.shape[2] // 2 * 2
-        video = np.ascontiguousarray(video[:, :h, :w])
-    return video, info, indices
+    h, w = video.shape[1:3]
+    if crop:
+        y0, x0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
+        video = video[:, y0:y0 + crop, x0:x0 + crop]
+    h, w = video.shape[1] // 2 * 2, video.shape[2] // 2 * 2
+    return np.ascontiguousarray(video[:, :h, :w]), info, indices
 
 
 def render(params: np.ndarray, width: int, height: int, device: str = "cpu", canvas=None) -> np.ndarray:

@@ -5,9 +5,10 @@ each table's first line).
 
     hypergs bench plots [--bench docs/bench] [--out docs]
 
-- vs-fit: PSNR against encode seconds per frame (log), one panel per size: per-frame fitting from
-  random at each iteration count (circles, solid), the feedforward prediction (star) and
-  feedforward + refine K (squares, dashed), one colour per Gaussian count; means over the videos.
+- vs-fit: PSNR against encode seconds per frame (log), one panel per frames spec: per-frame fitting
+  from random (circles, dotted) and from the Gaussian grid (triangles, solid) at each iteration count,
+  the feedforward prediction (star) and feedforward + refine K (squares, dashed), one colour per
+  Gaussian count; means over the videos.
 - vs-x265: PSNR against bits per pixel (log), one panel per video: x265 at each CRF, and ours at each
   .hgs bit depth (one line per N and refine K).
 - scale: resident memory against frames encoded (now and peak), the bounded-memory evidence.
@@ -32,16 +33,20 @@ def plot_vs_fit(report: dict, path: Path) -> None:
     sizes = list(dict.fromkeys(g["size"] for g in summary))
     fig, axes = plt.subplots(1, len(sizes), figsize=(6.2 * len(sizes), 4.8), squeeze=False)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    styles = {"random": ("o", ":"), "grid": ("^", "-")}
     for ax, size in zip(axes[0], sizes):
         groups = [g for g in summary if g["size"] == size]
         for i, g in enumerate(groups):
             c = colours[i % len(colours)]
             n = "/".join(str(v) for v in g["n"])
-            if g["fit"]:
-                ax.plot([f["seconds"] for f in g["fit"]], [f["psnr"] for f in g["fit"]], "o-", color=c,
-                        label=f"fitting N={n}")
-                for f in g["fit"]:
-                    ax.annotate(str(f["iters"]), (f["seconds"], f["psnr"]), fontsize=7, color=c,
+            for init, rungs in g["fit"].items():
+                if not rungs:
+                    continue
+                marker, line = styles.get(init, ("o", "-"))
+                ax.plot([f["seconds"] for f in rungs], [f["psnr"] for f in rungs], marker + line, color=c,
+                        markersize=4, alpha=0.8, label=f"fitting from {init} N={n}")
+                for f in rungs:
+                    ax.annotate(str(f["iters"]), (f["seconds"], f["psnr"]), fontsize=6, color=c,
                                 xytext=(3, -9), textcoords="offset points")
             ff = g["feedforward"]
             ax.plot([ff["seconds"]], [ff["psnr"]], "*", color=c, markersize=13, label=f"ours N={n}")
@@ -53,7 +58,7 @@ def plot_vs_fit(report: dict, path: Path) -> None:
                     ax.annotate(f"K={r['k']}", (r["seconds"], r["psnr"]), fontsize=7, color=c,
                                 xytext=(3, 4), textcoords="offset points")
         res = ", ".join(groups[0]["resolution"]) if groups else ""
-        ax.set_title(f"size {size} ({res})", fontsize=10)
+        ax.set_title(f"frames {size} ({res})", fontsize=10)
         ax.set_xscale("log")
         ax.set_xlabel("encode seconds per frame (log)")
         ax.set_ylabel("PSNR (dB)")

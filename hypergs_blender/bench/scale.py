@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import EncodePlan, encode_frames, encode_video, split_count
+from ..encode import EncodePlan, encode_frames, encode_video, frames_layout
+from ..evaluate import warm_up
 from ..errors import HyperGSError
 from ..io.clips import save_clip
 from ..io.codec import Quantizer
@@ -50,13 +51,21 @@ def pan_image(width: int, height: int, seed: int = 0) -> np.ndarray:
 
 
 def make_pan_video(path, seconds: float = 60.0, width: int = 1280, height: int = 720, fps: int = 24,
-                   codec: str = "libx264", crf: int = 18, preset: str = "veryfast", seed: int = 0) -> dict:
-    """Write a synthetic video: a smooth camera pan (Lissajous path, sub-pixel steps rounded to whole
-    pixels) over a procedural image 1.5x the frame. yuv420p mp4. Returns its description."""
+                   codec: str = "libx264", crf: int = 18, preset: str = "veryfast", seed: int = 0,
+                   image: np.ndarray | None = None) -> dict:
+    """Write a video: a smooth camera pan (Lissajous path, sub-pixel steps rounded to whole pixels) over
+    an image 1.5x the frame: `image` (uint8 RGB, resized and cropped to that) or a procedural one.
+    yuv420p mp4. Returns its description."""
     import av
     frames = max(1, round(seconds * fps))
     big_w, big_h = int(width * 1.5) // 2 * 2, int(height * 1.5) // 2 * 2
-    image = pan_image(big_w, big_h, seed)
+    if image is None:
+        image = pan_image(big_w, big_h, seed)
+    else:
+        from ..io.images import resize_exact
+        scale = max(big_w / image.shape[1], big_h / image.shape[0])
+        image = resize_exact(image, max(big_w, round(image.shape[1] * scale)), max(big_h, round(image.shape[0] * scale)))
+        image = np.ascontiguousarray(image[:big_h, :big_w])
     started = time.perf_counter()
     with av.open(str(path), "w") as container:
         stream = container.add_stream(codec, rate=fps, options={"crf": str(crf), "preset": preset})
@@ -109,20 +118,20 @@ def _reset_peak_rss() -> bool:
         return False
 
 
-def stream_encode(path, out_path, encoder, gaussian_count: int, grid: int = 1, size: int | None = None,
-                  chunk_clips: int = 4, refine: int = 0, bits: int = 8, hold_frames: bool = False,
-                  on_chunk=None) -> dict:
+def stream_encode(path, out_path, encoder, gaussians: int | None = None, cell: float | None = None,
+                  size: int | None = None, chunk_frames: int = 16, refine: int = 0, bits: int = 8,
+                  hold_frames: bool = False, on_chunk=None) -> dict:
     """Video -> .hgs without ever holding the clip: EncodePlan.chunks (what `hypergs encode` runs)
     into an HgsWriter with the default quantizer ranges (values outside are clipped and counted).
     on_chunk(frames_done) after each chunk. hold_frames keeps every decoded frame (a control that must
     grow memory). Seconds: decoding + encoding (+ refine), and writing."""
-    plan = EncodePlan(path, encoder, gaussian_count, grid, size)
+    plan = EncodePlan(path, encoder, gaussians, cell, size)
     w, h = plan.width, plan.height
     held, seconds = [], {"decode_encode": 0.0, "write": 0.0}
-    with HgsWriter(out_path, w, h, gaussian_count, Quantizer.default(w, h, bits), plan.fps, (grid, grid),
+    with HgsWriter(out_path, w, h, plan.layout.count, Quantizer.default(w, h, bits), plan.fps, plan.grid,
                    {"path": str(path)}) as writer:
         started = time.perf_counter()
-        for frames, params in plan.chunks(chunk_clips=chunk_clips, refine=refine):
+        for frames, params in plan.chunks(chunk_frames=chunk_frames, refine=refine):
             seconds["decode_encode"] += time.perf_counter() - started
             if hold_frames:
                 held.append(frames)
@@ -133,7 +142,7 @@ def stream_encode(path, out_path, encoder, gaussian_count: int, grid: int = 1, s
                 on_chunk(writer.num_frames)
             started = time.perf_counter()
         frames_written, clipped = writer.num_frames, writer.clipped
-    return {"frames": frames_written, "width": w, "height": h, "clipped_values": clipped,
+    return {"frames": frames_written, "width": w, "height": h, "gaussians": plan.layout.count, "clipped_values": clipped,
             "seconds": seconds, "held_frames": sum(len(f) for f in held)}
 
 
@@ -142,7 +151,7 @@ def _scale_worker(spec: dict) -> dict:
     device = spec.get("device", "cpu")
     if spec["job"] == "encode_video":  # what `hypergs encode` runs: encode.encode_video, then save_clip
         encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device)
-        encode_frames(np.zeros((1, 32, 32, 3), np.uint8), encoder, 16)
+        warm_up(encoder)
         reset = _reset_peak_rss()
         baseline = _rss_mb() or _peak_rss_mb()
         trace = []
@@ -151,8 +160,8 @@ def _scale_worker(spec: dict) -> dict:
             trace.append([done, round(_rss_mb() or 0.0, 1), round(_peak_rss_mb(), 1)])
             return True
         started = time.perf_counter()
-        video = encode_video(spec["video"], encoder, spec["gaussians"], spec["grid"], spec.get("size"),
-                             progress=progress, chunk_clips=spec.get("chunk_clips", 4), refine=spec.get("refine", 0))
+        video = encode_video(spec["video"], encoder, spec.get("gaussians"), spec.get("cell"), spec.get("size"),
+                             progress=progress, chunk_frames=spec.get("chunk_frames", 16), refine=spec.get("refine", 0))
         save_clip(video, spec["output"], bits=spec.get("bits", 8))
         seconds = time.perf_counter() - started
         return {"encoder": encoder.name, "frames": video.num_frames, "wall_seconds": seconds,
@@ -161,9 +170,10 @@ def _scale_worker(spec: dict) -> dict:
     if spec["job"] == "encode":
         encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device)
         # warm-up on a tiny frame (numba / torch initialisation), then the baseline
-        params = encode_frames(np.zeros((1, 32, 32, 3), np.uint8), encoder, 16)
+        warm_up(encoder)
         if spec.get("refine"):
-            refine_ladder(params, np.zeros((1, 32, 32, 3), np.uint8), (2,), device)
+            blank = np.zeros((1, 32, 32, 3), np.uint8)
+            refine_ladder(encode_frames(blank, encoder, frames_layout(blank, encoder, gaussians=16)), blank, (2,), device)
         startup_peak = _peak_rss_mb()
         reset = _reset_peak_rss()
         baseline = _rss_mb() or _peak_rss_mb()
@@ -172,8 +182,8 @@ def _scale_worker(spec: dict) -> dict:
         def on_chunk(done):
             trace.append([done, round(_rss_mb() or 0.0, 1), round(_peak_rss_mb(), 1)])
         started = time.perf_counter()
-        result = stream_encode(spec["video"], spec["output"], encoder, spec["gaussians"], spec["grid"],
-                               spec.get("size"), spec.get("chunk_clips", 4), spec.get("refine", 0),
+        result = stream_encode(spec["video"], spec["output"], encoder, spec.get("gaussians"), spec.get("cell"),
+                               spec.get("size"), spec.get("chunk_frames", 16), spec.get("refine", 0),
                                spec.get("bits", 8), spec.get("hold_frames", False), on_chunk=on_chunk)
         seconds = time.perf_counter() - started
         return {"encoder": encoder.name, **result, "wall_seconds": seconds, "fps": result["frames"] / seconds,
@@ -239,7 +249,8 @@ def run_scale_job(spec: dict, timeout: float | None = None) -> dict:
 
 
 def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: int = 720, fps: int = 24,
-                gaussians: int = 1000, grid: int = 1, chunk_clips: int = 4, refine: int = 0, bits: int = 8,
+                gaussians: int | None = None, cell: float | None = 6.0, chunk_frames: int = 16, refine: int = 0,
+                bits: int = 8,
                 render_width: int = 1920, render_height: int = 1080, render_frames: int | None = 48,
                 psnr_frames: int = 8, encoder: str = "network", backend: str = "auto", weights=None,
                 device: str = "auto", keep: str | None = None, also_encode_video: bool = False,
@@ -251,10 +262,9 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
     also_encode_video: also run what `hypergs encode` runs (encode.encode_video, which returns the
     whole clip, then save_clip), in its own process, for its peak memory and frames/s."""
     device = resolve_device(device)
-    grid = max(1, grid)
-    n = split_count(gaussians, grid)
+    density = dict(gaussians=gaussians, cell=None if gaussians else cell)
     report = {"bench": "scale", "machine": machine_report(device),
-              "settings": {"gaussians": n, "grid": grid, "chunk_clips": chunk_clips, "refine": refine, "bits": bits,
+              "settings": {**density, "chunk_frames": chunk_frames, "refine": refine, "bits": bits,
                            "render": [render_width, render_height], "render_frames": render_frames,
                            "encoder": encoder, "device": device}, "notes": []}
     with tempfile.TemporaryDirectory(prefix="hypergs-scale-") as tmp:
@@ -270,9 +280,10 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
                                 "width": info.width, "height": info.height, "fps": info.fps}
         clip = folder / "scale.hgs"
         common = {"encoder": encoder, "backend": backend, "weights": weights, "device": device}
-        say(progress, f"encoding {report['source']['frames']} frames at N={n}, grid {grid}")
-        enc = run_scale_job({"job": "encode", "video": str(video), "output": str(clip), "gaussians": n, "grid": grid,
-                             "chunk_clips": chunk_clips, "refine": refine, "bits": bits, **common})
+        say(progress, f"encoding {report['source']['frames']} frames ({density})")
+        enc = run_scale_job({"job": "encode", "video": str(video), "output": str(clip), **density,
+                             "chunk_frames": chunk_frames, "refine": refine, "bits": bits, **common})
+        n = enc["gaussians"]
         enc.update(memory_growth(enc))
         enc["hgs_bytes"] = clip.stat().st_size
         enc["bpp"] = 8 * clip.stat().st_size / (enc["frames"] * enc["width"] * enc["height"])
@@ -281,7 +292,7 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
         if also_encode_video:
             say(progress, "encoding again with encode.encode_video + save_clip (the `hypergs encode` path)")
             ev = run_scale_job({"job": "encode_video", "video": str(video), "output": str(folder / "encode_video.hgs"),
-                                "gaussians": n, "grid": grid, "chunk_clips": chunk_clips, "refine": refine,
+                                **density, "chunk_frames": chunk_frames, "refine": refine,
                                 "bits": bits, **common})
             ev.update(memory_growth(ev))
             report["encode_video"] = ev
@@ -301,8 +312,8 @@ def format_scale_table(report: dict) -> str:
     q = r.get("quality") or {}
     name = "synthetic pan" if src.get("synthetic") else Path(src["path"]).name
     lines = [f"{m['date'][:10]}, {m['cpu']} ({m['cores']} cores{', ' + m['gpu'] if m.get('gpu') else ''}; device "
-             f"{m['device']}, load {m.get('load_average_1m', '?')}). Encoder `{e['encoder']}`, {s['gaussians']} Gaussians "
-             f"per frame ({s['grid']}x{s['grid']} grid), chunks of {s['chunk_clips']} clips; source {name} "
+             f"{m['device']}, load {m.get('load_average_1m', '?')}). Encoder `{e['encoder']}`, {e['gaussians']} Gaussians "
+             f"per frame, chunks of {s['chunk_frames']} frames; source {name} "
              f"{src['width']}x{src['height']} at {src['fps']:g} fps, {src['frames']} frames. Peak RSS of the job's "
              "process after start-up (MiB): the peak when half the frames were done, and at the end.", "",
              "| path | frames | encode fps | RSS before | peak at half | peak at end | .hgs bpp |",

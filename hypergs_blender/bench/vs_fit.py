@@ -1,25 +1,28 @@
-"""`hypergs bench vs-fit`: the encoder's feedforward prediction, the prediction + K refine steps
-(least-squares colours, then K - 1 warm-started Adam steps), and per-frame fitting from random initial
-values at a ladder of iteration counts, on the same frames; PSNR and seconds per frame, and the
-encode-time ratio (fitting / ours) at matched PSNR."""
+"""`hypergs bench vs-fit`: the encoder's feedforward prediction and the prediction + K refine steps
+(least-squares colours, then K - 1 warm-started Adam steps), against per-frame fitting from random
+initial values and from the Gaussian grid (the strongest cheap baseline), each at a ladder of iteration
+counts, on the same frames; PSNR and seconds per frame, the encode-time ratio (fitting / ours) at
+matched PSNR, and fitting's PSNR at our time (the PSNR-versus-seconds curves of docs/vs_fit.png)."""
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from ..encode import encode_frames, split_count
+from ..encode import FloorEncoder, encode_frames, frames_layout
 from ..network import resolve_encoder
-from ..refine import REFINE_LR, fit, random_init, refine_params
-from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, auto_grid, load_frames, machine_report, parse_size, psnr_of, render,
+from ..refine import REFINE_STEPS, fit, random_init, refine_params
+from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, load_frames, machine_report, parse_frames, psnr_of, render,
                      resolve_device, say, sync)
 
-DEFAULT_REFINE_STEPS = (1, 10, 50, 200)
-DEFAULT_FIT_ITERS = (10, 30, 100, 300, 1000, 3000, 10000)  # the issue's rungs, plus two cheap ones below
-DEFAULT_FIT_BUDGET = 30.0  # CLI: seconds of fitting per (video, size, N) on 2 CPU cores; 0 = no limit
-DEFAULT_SIZES = ("256", "native")
+DEFAULT_REFINE_STEPS = (1, 10, 30, 100)
+DEFAULT_FIT_ITERS = (10, 30, 100, 300, 1000, 3000)
+DEFAULT_FIT_BUDGET = 30.0  # CLI: seconds of fitting per (video, frames, N, init) on 2 CPU cores; 0 = no limit
+DEFAULT_SIZES = ("256", "crop480")
+FIT_INITS = ("random", "grid")
 
 
 def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_STEPS, device: str = "cpu"):
@@ -42,17 +45,23 @@ def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_S
     return [(k, *taken[k]) for k in steps]
 
 
-def fit_from_random(frames: np.ndarray, n: int, iters: int, device: str = "cpu", seed: int = 0):
-    """Per-frame fitting from refine.random_init for `iters` Adam steps (refine.fit's cosine schedule).
-    Returns (params numpy, seconds) for all frames at once (they are fitted as one batch)."""
+def fit_from(frames: np.ndarray, n: int, iters: int, init: str = "random", device: str = "cpu", seed: int = 0):
+    """Per-frame fitting for `iters` Adam steps (refine.fit's cosine schedule) from random initial values
+    (refine.random_init, N Gaussians) or from the Gaussian grid (the floor, on the layout for N).
+    Returns (params numpy, seconds) for all frames at once (they are fitted as one batch); the grid's
+    initial values count in its time."""
     import torch
 
     t, h, w = frames.shape[:3]
     target = torch.from_numpy(frames).to(device).float() / 255
-    init = torch.from_numpy(random_init(t, n, w, h, seed)).to(device)
     sync(device)
     started = time.perf_counter()
-    params = fit(target, init, iters)
+    if init == "grid":
+        floor = FloorEncoder()
+        start = encode_frames(frames, floor, frames_layout(frames, floor, gaussians=n))
+    else:
+        start = random_init(t, n, w, h, seed)
+    params = fit(target, torch.from_numpy(start).to(device), iters)
     sync(device)
     seconds = time.perf_counter() - started
     return params.detach().cpu().numpy(), seconds
@@ -81,22 +90,33 @@ def matched_ratio(our_psnr: float, our_seconds: float, fit_points) -> dict:
     return {"fit_seconds": fit_seconds, "ratio": fit_seconds / our_seconds, "bound": bound}
 
 
+def fit_psnr_at(seconds: float, fit_points) -> float | None:
+    """Fitting's PSNR after `seconds` per frame, interpolated linearly in log(seconds) between its rungs
+    (None outside them)."""
+    points = sorted((float(s), float(p)) for s, p in fit_points)
+    for (s0, p0), (s1, p1) in zip(points, points[1:]):
+        if s0 <= seconds <= s1:
+            a = (math.log(seconds) - math.log(s0)) / (math.log(s1) - math.log(s0)) if s1 > s0 else 1.0
+            return p0 + a * (p1 - p0)
+    return None
+
+
 def warm_up(frames: np.ndarray, encoder, device: str) -> None:
     """Compile/initialise every code path once (numba JIT, torch kernels) on tiny work."""
     small = frames[:1, :32, :32]
-    params = encode_frames(small, encoder, 16)
+    params = encode_frames(small, encoder, frames_layout(small, encoder, gaussians=16))
     refine_ladder(params, small, (2,), device)
-    fit_from_random(small, 16, 2, device)
+    fit_from(small, 16, 2, "grid", device)
     render(params, 32, 32, device)
 
 
-def _feedforward(frames: np.ndarray, encoder, n: int, grid: int, device: str):
+def _feedforward(frames: np.ndarray, encoder, layout, device: str):
     """(seconds per frame, params) of encode_frames: the median of 3 runs when one takes under 2 s
     (short timings are noisy), else the one run."""
     def run():
         sync(device)
         started = time.perf_counter()
-        out = encode_frames(frames, encoder, n, grid)
+        out = encode_frames(frames, encoder, layout)
         sync(device)
         return time.perf_counter() - started, out
     seconds, params = run()
@@ -107,52 +127,51 @@ def _feedforward(frames: np.ndarray, encoder, n: int, grid: int, device: str):
 
 def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFINE_STEPS, fit_iters=DEFAULT_FIT_ITERS,
                  sizes=DEFAULT_SIZES, frames: int = 4, start: int = 0, encoder="network", backend: str = "auto",
-                 weights=None, device: str = "auto", grid: int | None = None, fit_budget: float | None = None,
-                 fit_all: bool = False, progress=None) -> dict:
-    """Feedforward vs feedforward + refine vs fitting from random, on the same consecutive frames.
+                 weights=None, device: str = "auto", fit_budget: float | None = None, fit_all: bool = False,
+                 fit_inits=FIT_INITS, progress=None) -> dict:
+    """Feedforward vs feedforward + refine vs fitting (from random, from the grid), on the same
+    consecutive frames.
 
-    Per video, size ('256' or 'native': the video's own W x H, with a G x G patch grid, G = `grid` or
-    the one whose tiles come closest to the encoder's canvas) and Gaussian count N (rounded down to a
-    multiple of G^2): PSNR and seconds per frame of each method; for fitting, the rungs of
-    `fit_iters` in order, each a separate run from the same random start (cosine schedule over its
-    own length). Rungs stop early (marked skipped) once one reaches the best PSNR of ours (every
-    ratio can then be interpolated) unless fit_all, and when the next rung would take fitting past
-    `fit_budget` seconds for this (video, size, N), predicted from the last rung's time per step."""
+    Per video, frames spec ('256': short-side resize + crop; 'crop480': a 480 x 480 centre crop at the
+    video's own resolution; 'native': whole frames) and Gaussian count N (the layout's count nearest N):
+    PSNR and seconds per frame of each method; for fitting, the rungs of `fit_iters` in order, each a
+    separate run (cosine schedule over its own length). Rungs stop early (marked skipped) once one
+    reaches the best PSNR of ours (every ratio can then be interpolated) unless fit_all, and when the
+    next rung would take fitting past `fit_budget` seconds, predicted from the last rung's time per step."""
     device = resolve_device(device)
     if isinstance(encoder, str):
         encoder = resolve_encoder(encoder, backend, weights, device)
-    encoder_name = encoder.name
     refine_steps, fit_iters = sorted(set(refine_steps)), sorted(set(fit_iters))
     report = {"bench": "vs-fit", "machine": machine_report(device),
               "settings": {"gaussians": list(gaussians), "refine_steps": refine_steps, "fit_iters": fit_iters,
-                           "sizes": [str(s) for s in sizes], "frames": frames, "start": start,
-                           "encoder": encoder_name, "grid": grid, "fit_budget_s": fit_budget, "fit_all": fit_all,
-                           "refine_lr": REFINE_LR, "timing": "seconds per frame, wall clock, all frames as one batch"},
+                           "fit_inits": list(fit_inits), "sizes": [str(s) for s in sizes], "frames": frames,
+                           "start": start, "encoder": encoder.name, "fit_budget_s": fit_budget, "fit_all": fit_all,
+                           "refine_steps_sizes": asdict(REFINE_STEPS), "timing": "seconds per frame, wall clock, all frames as one batch"},
               "videos": []}
     warmed = False
     for path in videos:
         entry = {"path": str(path), "sizes": []}
         for size_text in sizes:
-            size = parse_size(size_text)
-            clip, info, indices = load_frames(path, frames, size, start)
+            size, crop = parse_frames(size_text)
+            clip, info, indices = load_frames(path, frames, size, start, crop)
             t, h, w = clip.shape[:3]
-            g = 1 if size is not None else (grid or auto_grid(w, h, encoder.canvas))
             if not warmed:
                 warm_up(clip, encoder, device)
                 warmed = True
-            block = {"size": "native" if size is None else str(size), "width": w, "height": h, "grid": g,
-                     "frames": t, "frame_indices": indices, "rows": []}
+            block = {"size": str(size_text), "width": w, "height": h, "frames": t, "frame_indices": indices,
+                     "rows": []}
             for n_asked in gaussians:
-                n = split_count(n_asked, g)
+                layout = frames_layout(clip, encoder, gaussians=n_asked)
+                n = layout.count
                 label = f"{Path(path).name} {w}x{h} N={n}"
                 say(progress, f"{label}: feedforward")
-                encode_frames(clip[:1], encoder, n, g)  # warm-up at this N (shapes)
-                ff_seconds, params = _feedforward(clip, encoder, n, g, device)
+                encode_frames(clip[:1], encoder, layout)  # warm-up at this N (shapes)
+                ff_seconds, params = _feedforward(clip, encoder, layout, device)
                 ff_psnr = psnr_of(render(params, w, h, device), clip)
-                row = {"n_requested": n_asked, "n": n,
+                row = {"n_requested": n_asked, "n": n, "cells": [layout.cols, layout.rows],
                        "feedforward": {"seconds": ff_seconds, "psnr": float(np.mean(ff_psnr)),
                                        "psnr_per_frame": [round(float(q), 3) for q in ff_psnr]},
-                       "refine": [], "fit": [], "matched": []}
+                       "refine": [], "matched": []}
                 if refine_steps:
                     say(progress, f"{label}: refine {refine_steps}")
                     for k, refined, seconds in refine_ladder(params, clip, refine_steps, device):
@@ -162,26 +181,25 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
                 ours = [("feedforward", row["feedforward"]["psnr"], ff_seconds)]
                 ours += [(f"refine {r['k']}", r["psnr"], r["seconds"]) for r in row["refine"]]
                 target_psnr = max(p for _, p, _ in ours)
-                spent, per_step, stop = 0.0, None, None
-                for iters in fit_iters:
-                    if stop is None and fit_budget is not None and per_step is not None \
-                            and spent + per_step * iters > fit_budget:
-                        stop = "budget"
-                    if stop is not None:
-                        row["fit"].append({"iters": iters, "skipped": stop})
-                        continue
-                    say(progress, f"{label}: fitting {iters} iterations")
-                    fitted, seconds = fit_from_random(clip, n, iters, device)
-                    q = float(np.mean(psnr_of(render(fitted, w, h, device), clip)))
-                    row["fit"].append({"iters": iters, "seconds": seconds / t, "psnr": q})
-                    spent += seconds
-                    per_step = seconds / iters
-                    if not fit_all and q >= target_psnr:
-                        stop = "reached"
-                points = [(f["seconds"], f["psnr"]) for f in row["fit"] if "psnr" in f]
-                for method, q, seconds in ours:
-                    row["matched"].append({"method": method, "psnr": q, "seconds": seconds,
-                                           **matched_ratio(q, seconds, points)})
+                for init in fit_inits:
+                    rungs, spent, per_step, stop = [], 0.0, None, None
+                    for iters in fit_iters:
+                        if stop is None and fit_budget is not None and per_step is not None \
+                                and spent + per_step * iters > fit_budget:
+                            stop = "budget"
+                        if stop is not None:
+                            rungs.append({"iters": iters, "skipped": stop})
+                            continue
+                        say(progress, f"{label}: fitting from {init}, {iters} iterations")
+                        fitted, seconds = fit_from(clip, n, iters, init, device)
+                        q = float(np.mean(psnr_of(render(fitted, w, h, device), clip)))
+                        rungs.append({"iters": iters, "seconds": seconds / t, "psnr": q})
+                        spent += seconds
+                        per_step = seconds / iters
+                        if not fit_all and q >= target_psnr:
+                            stop = "reached"
+                    row[f"fit_{init}"] = rungs
+                row["matched"] = matched_rows(ours, {init: row[f"fit_{init}"] for init in fit_inits})
                 block["rows"].append(row)
             entry["sizes"].append(block)
         report["videos"].append(entry)
@@ -190,14 +208,31 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
     return report
 
 
+def matched_rows(ours, fits: dict) -> list[dict]:
+    """For each of our methods (name, psnr, seconds): per fitting init, the fitting time to our PSNR
+    (and the ratio) and fitting's PSNR at our time (and our lead over it)."""
+    out = []
+    for method, q, seconds in ours:
+        row = {"method": method, "psnr": q, "seconds": seconds}
+        for init, rungs in fits.items():
+            points = [(f["seconds"], f["psnr"]) for f in rungs if "psnr" in f]
+            row[init] = matched_ratio(q, seconds, points)
+            at = fit_psnr_at(seconds, points)
+            row[init]["fit_psnr_at_our_seconds"] = at
+            row[init]["lead_db"] = None if at is None else q - at
+        out.append(row)
+    return out
+
+
 def summarize_vs_fit(report: dict) -> list[dict]:
-    """Per (size, N): means over the videos of each method's PSNR and seconds per frame (fitting rungs
-    measured on every video only), and the matched ratios recomputed on those mean curves."""
+    """Per (frames spec, N): means over the videos of each method's PSNR and seconds per frame (fitting
+    rungs measured on every video only), and the matched figures recomputed on those mean curves."""
     groups: dict = {}
     for video in report["videos"]:
         for block in video["sizes"]:
             for row in block["rows"]:
                 groups.setdefault((block["size"], row["n_requested"]), []).append((block, row))
+    inits = report["settings"]["fit_inits"]
     out = []
     for (size, n_requested), items in groups.items():
         rows = [r for _, r in items]
@@ -206,28 +241,26 @@ def summarize_vs_fit(report: dict) -> list[dict]:
             return float(np.mean(values))
         ff = {"psnr": mean([r["feedforward"]["psnr"] for r in rows]),
               "seconds": mean([r["feedforward"]["seconds"] for r in rows])}
-        refine = []
-        for i, first in enumerate(rows[0]["refine"]):
-            refine.append({"k": first["k"], "psnr": mean([r["refine"][i]["psnr"] for r in rows]),
-                           "seconds": mean([r["refine"][i]["seconds"] for r in rows]),
-                           "gain_db": mean([r["refine"][i]["gain_db"] for r in rows])})
-        fit = []
-        for i, first in enumerate(rows[0]["fit"]):
-            rungs = [r["fit"][i] for r in rows]
-            if all("psnr" in f for f in rungs):
-                fit.append({"iters": first["iters"], "psnr": mean([f["psnr"] for f in rungs]),
-                            "seconds": mean([f["seconds"] for f in rungs])})
-        points = [(f["seconds"], f["psnr"]) for f in fit]
-        matched = [{"method": "feedforward", "psnr": ff["psnr"], "seconds": ff["seconds"],
-                    **matched_ratio(ff["psnr"], ff["seconds"], points)}]
-        matched += [{"method": f"refine {r['k']}", "psnr": r["psnr"], "seconds": r["seconds"],
-                     **matched_ratio(r["psnr"], r["seconds"], points)} for r in refine]
-        skipped = sorted({(f["iters"], f["skipped"]) for r in rows for f in r["fit"] if "skipped" in f})
+        refine = [{"k": first["k"], "psnr": mean([r["refine"][i]["psnr"] for r in rows]),
+                   "seconds": mean([r["refine"][i]["seconds"] for r in rows]),
+                   "gain_db": mean([r["refine"][i]["gain_db"] for r in rows])}
+                  for i, first in enumerate(rows[0]["refine"])]
+        fits, skipped = {}, {}
+        for init in inits:
+            fits[init] = []
+            for i, first in enumerate(rows[0][f"fit_{init}"]):
+                rungs = [r[f"fit_{init}"][i] for r in rows]
+                if all("psnr" in f for f in rungs):
+                    fits[init].append({"iters": first["iters"], "psnr": mean([f["psnr"] for f in rungs]),
+                                       "seconds": mean([f["seconds"] for f in rungs])})
+            skipped[init] = [{"iters": i, "reason": why} for i, why in
+                             sorted({(f["iters"], f["skipped"]) for r in rows for f in r[f"fit_{init}"] if "skipped" in f})]
+        ours = [("feedforward", ff["psnr"], ff["seconds"])] + [(f"refine {r['k']}", r["psnr"], r["seconds"])
+                                                               for r in refine]
         out.append({"size": size, "n_requested": n_requested, "n": sorted({r["n"] for r in rows}),
-                    "fit_skipped": [{"iters": i, "reason": why} for i, why in skipped],
-                    "resolution": sorted({f"{b['width']}x{b['height']}" for b, _ in items}),
-                    "grid": sorted({b["grid"] for b, _ in items}), "videos": len(rows),
-                    "feedforward": ff, "refine": refine, "fit": fit, "matched": matched})
+                    "resolution": sorted({f"{b['width']}x{b['height']}" for b, _ in items}), "videos": len(rows),
+                    "feedforward": ff, "refine": refine, "fit": fits, "fit_skipped": skipped,
+                    "matched": matched_rows(ours, fits)})
     return out
 
 
@@ -240,27 +273,37 @@ def ratio_text(m: dict) -> str:
 
 
 def format_vs_fit_table(report: dict) -> str:
-    """Markdown: per size and N (means over the videos), each method's PSNR and seconds per frame and
-    the fitting time at the same PSNR; then fitting's rungs."""
+    """Markdown: per frames spec and N (means over the videos), each method's PSNR and seconds per frame,
+    per fitting init the fitting time at the same PSNR (ratio) and fitting's PSNR at the same time;
+    then fitting's rungs."""
     m, s = report["machine"], report["settings"]
+    inits = s["fit_inits"]
     lines = [f"{m['date'][:10]}, {m['cpu']} ({m['cores']} cores{', ' + m['gpu'] if m.get('gpu') else ''}; "
              f"device {m['device']}, torch {m.get('torch_threads', '?')} threads, load {m.get('load_average_1m', '?')}). "
              f"Encoder `{s['encoder']}`, {s['frames']} consecutive frames per video from frame {s['start']}, "
              f"{len(report['videos'])} video(s); times are seconds per frame.", "",
-             "| size | N | method | PSNR dB | s/frame | fitting s/frame at this PSNR | fitting / ours |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             "| frames | N | method | PSNR dB | s/frame |"
+             + "".join(f" fit from {i}: s/frame to this PSNR (ratio) | fit from {i}: PSNR at this time |" for i in inits),
+             "|" + " --- |" * (5 + 2 * len(inits))]
     for g in report["summary"]:
         n = "/".join(str(v) for v in g["n"])
-        size = f"{g['size']} ({', '.join(g['resolution'])}, grid {'/'.join(str(v) for v in g['grid'])})"
+        size = f"{g['size']} ({', '.join(g['resolution'])})"
         for mt in g["matched"]:
-            fit_s = "n/a" if mt["fit_seconds"] is None else \
-                {"=": "", "<=": "≤ ", ">=": "> "}[mt["bound"]] + f"{mt['fit_seconds']:.3g}"
-            lines.append(f"| {size} | {n} | {mt['method']} | {mt['psnr']:.2f} | {mt['seconds']:.4g} | {fit_s} | "
-                         f"{ratio_text(mt)} |")
-        for f in g["fit"]:
-            lines.append(f"| {size} | {n} | fit {f['iters']} it | {f['psnr']:.2f} | {f['seconds']:.4g} | | |")
-        for reason, why in (("reached", "reached ours' best PSNR at fewer iterations"), ("budget", "over --fit-budget")):
-            its = [str(f["iters"]) for f in g["fit_skipped"] if f["reason"] == reason]
-            if its:
-                lines.append(f"| {size} | {n} | fit {', '.join(its)} it | skipped on some or all videos: {why} | | | |")
+            cells = ""
+            for init in inits:
+                x = mt[init]
+                fit_s = "n/a" if x["fit_seconds"] is None else \
+                    {"=": "", "<=": "≤ ", ">=": "> "}[x["bound"]] + f"{x['fit_seconds']:.3g} ({ratio_text(x)})"
+                at = "n/a" if x["fit_psnr_at_our_seconds"] is None else f"{x['fit_psnr_at_our_seconds']:.2f}"
+                cells += f" {fit_s} | {at} |"
+            lines.append(f"| {size} | {n} | {mt['method']} | {mt['psnr']:.2f} | {mt['seconds']:.4g} |{cells}")
+        for init in inits:
+            for f in g["fit"][init]:
+                lines.append(f"| {size} | {n} | fit from {init}, {f['iters']} it | {f['psnr']:.2f} | {f['seconds']:.4g} |"
+                             + " |" * (2 * len(inits)))
+            for reason, why in (("reached", "reached ours' best PSNR at fewer iterations"), ("budget", "over --fit-budget")):
+                its = [str(f["iters"]) for f in g["fit_skipped"][init] if f["reason"] == reason]
+                if its:
+                    lines.append(f"| {size} | {n} | fit from {init}, {', '.join(its)} it | skipped on some or all "
+                                 f"videos: {why} | |" + " |" * (2 * len(inits)))
     return "\n".join(lines)

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import encode_frames, split_count
+from ..encode import encode_frames, frames_layout
 from ..gaussians import GaussianVideo
 from ..io.hgs import load_hgs, save_hgs
 from ..metrics import ssim
 from ..network import resolve_encoder
-from .common import (BOUND_TEXT, DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, auto_grid, encode_reference,
-                     load_frames, machine_report, parse_size, psnr_of, render, resolve_device, say, sync, timed,
+from .common import (BOUND_TEXT, DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, encode_reference, load_frames,
+                     machine_report, parse_frames, psnr_of, render, resolve_device, say, sync, timed,
                      video_codec_available)
 from .vs_fit import refine_ladder, warm_up
 
@@ -41,7 +41,7 @@ def bpp_at_psnr(psnr: float, rows) -> tuple[float | None, str | None]:
 
 def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=DEFAULT_CRFS, size="256",
                   frames: int | None = 24, start: int = 0, refine_steps=(0,), encoder="network",
-                  backend: str = "auto", weights=None, device: str = "auto", grid: int | None = None,
+                  backend: str = "auto", weights=None, device: str = "auto",
                   codec: str = "libx265", preset: str = "medium", group_size: int = 16, decode_repeats: int = 3,
                   position_bits: int | None = 10, progress=None) -> dict:
     """Matched-quality pairs: Gaussians (N, refine K, .hgs bit depth) against an FFmpeg codec's CRFs on
@@ -63,28 +63,27 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
     if not video_codec_available(codec):
         notes.append(f"{codec} is not in PyAV's FFmpeg; used libx264")
         codec = "libx264"
-    size_value = parse_size(size)
+    size_value, crop = parse_frames(size)
     report = {"bench": "vs-x265", "machine": machine_report(device),
               "settings": {"gaussians": list(gaussians), "bits": list(bits), "crfs": list(crfs),
-                           "size": "native" if size_value is None else str(size_value), "frames": frames,
+                           "size": str(size), "frames": frames,
                            "start": start, "refine_steps": list(refine_steps), "encoder": encoder_name,
-                           "codec": codec, "preset": preset, "group_size": group_size, "grid": grid,
+                           "codec": codec, "preset": preset, "group_size": group_size,
                            "decode_repeats": decode_repeats, "position_bits": position_bits},
               "notes": notes, "videos": []}
     warmed = False
     with tempfile.TemporaryDirectory(prefix="hypergs-vs-x265-") as tmp:
         clip_path = Path(tmp) / "clip.hgs"
         for path in videos:
-            clip, info, indices = load_frames(path, frames, size_value, start)
+            clip, info, indices = load_frames(path, frames, size_value, start, crop)
             t, h, w = clip.shape[:3]
             pixels = t * h * w
             target = clip.astype(np.float32) / 255
-            g = 1 if size_value is not None else (grid or auto_grid(w, h, encoder.canvas))
             if not warmed:
                 warm_up(clip, encoder, device)
                 warmed = True
             entry = {"path": str(path), "frames": t, "frame_indices": [indices[0], indices[-1]], "width": w,
-                     "height": h, "grid": g, "fps": info.fps, "x265": [], "ours": [], "pairs": []}
+                     "height": h, "fps": info.fps, "x265": [], "ours": [], "pairs": []}
             for crf in crfs:
                 say(progress, f"{Path(path).name}: {codec} crf {crf}")
                 ref = encode_reference(clip, info.fps, codec, crf, preset)
@@ -94,11 +93,12 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                                       "ssim": float(np.mean(ssim(decoded, target))),
                                       "encode_fps": t / ref["encode_s"], "decode_fps": t / ref["decode_s"]})
             for n_asked in gaussians:
-                n = split_count(n_asked, g)
-                encode_frames(clip[:1], encoder, n, g)  # warm-up at this N
+                layout = frames_layout(clip, encoder, gaussians=n_asked)
+                n = layout.count
+                encode_frames(clip[:1], encoder, layout)  # warm-up at this N
                 sync(device)
                 started = time.perf_counter()
-                params = encode_frames(clip, encoder, n, g)
+                params = encode_frames(clip, encoder, layout)
                 sync(device)
                 encoder_s = time.perf_counter() - started
                 ks = sorted(set(refine_steps))
@@ -113,7 +113,7 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                            "encode_fps_float": t / (encoder_s + refine_s), "render_fps": t / render_s,
                            "float_psnr": float(np.mean(psnr_of(rendered, clip))),
                            "float_ssim": float(np.mean(ssim(rendered, target))), "hgs": []}
-                    video = GaussianVideo(p, w, h, info.fps, (g, g))
+                    video = GaussianVideo(p, w, h, info.fps, (layout.cols, layout.rows))
                     for b in bits:
                         started = time.perf_counter()
                         depths = (position_bits,) * 2 + (b,) * 6 if position_bits and position_bits > b else b

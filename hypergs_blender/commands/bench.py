@@ -10,7 +10,7 @@ import json
 import sys
 
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
-from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES
+from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES, FIT_INITS
 from ..network import BACKENDS
 
 
@@ -39,12 +39,11 @@ def _raster(parser):
 def _encode(parser):
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--size", type=int, default=256)
-    parser.add_argument("--grid", type=int, default=1)
     parser.add_argument("--weights", default=None)
 
     def run(args):
         from ..bench.encode import bench_encode
-        return bench_encode(frames=args.frames, size=args.size, grid=args.grid, weights=args.weights)
+        return bench_encode(frames=args.frames, size=args.size, weights=args.weights)
     return run
 
 
@@ -79,14 +78,16 @@ def _vs_fit(parser):
     parser.add_argument("--refine-steps", type=int, nargs="*", default=list(DEFAULT_REFINE_STEPS),
                         help="K values for feedforward + refine (1: least-squares colours only)")
     parser.add_argument("--fit-iters", type=int, nargs="+", default=list(DEFAULT_FIT_ITERS),
-                        help="fitting-from-random rungs (iterations), each its own run")
+                        help="fitting rungs (iterations), each its own run")
+    parser.add_argument("--fit-inits", nargs="+", default=list(FIT_INITS), choices=FIT_INITS,
+                        help="fitting baselines: from random initial values, from the Gaussian grid")
     parser.add_argument("--sizes", nargs="+", default=list(DEFAULT_SIZES),
-                        help="square sizes (short-side resize + crop) and/or 'native' (own W x H, patch grid)")
+                        help="frames: square sizes (short-side resize + crop), 'cropN' (N x N centre crop at the "
+                             "video's resolution), 'native' (whole frames)")
     parser.add_argument("--frames", type=int, default=4, help="consecutive frames per video")
     parser.add_argument("--start", type=int, default=0, help="first frame")
-    parser.add_argument("--grid", type=int, default=None, help="patch grid at native size (default: tiles ~ canvas)")
     parser.add_argument("--fit-budget", type=float, default=DEFAULT_FIT_BUDGET,
-                        help="seconds of fitting per (video, size, N): rungs predicted to exceed it are skipped "
+                        help="seconds of fitting per (video, size, N, init): rungs predicted to exceed it are skipped "
                              f"(default {DEFAULT_FIT_BUDGET:g}; 0: no limit)")
     parser.add_argument("--fit-all", action="store_true",
                         help="run every rung (default: stop once fitting reaches ours' best PSNR)")
@@ -96,7 +97,8 @@ def _vs_fit(parser):
         from ..bench.vs_fit import bench_vs_fit
         return write_report(bench_vs_fit(args.videos, args.gaussians, args.refine_steps, args.fit_iters, args.sizes,
                                    args.frames, args.start, args.encoder, args.backend, args.weights, args.device,
-                                   args.grid, args.fit_budget or None, args.fit_all, progress=_progress), args.output)
+                                   args.fit_budget or None, args.fit_all, args.fit_inits, progress=_progress),
+                            args.output)
     return run
 
 
@@ -108,10 +110,9 @@ def _vs_x265(parser):
     parser.add_argument("--refine-steps", type=int, nargs="+", default=[0],
                         help="rows of ours at these refine K (0: the feedforward prediction)")
     parser.add_argument("--sizes", "--size", dest="size", default="256",
-                        help="square size (short-side resize + crop) or 'native' (own W x H, patch grid)")
+                        help="frames: a square size (short-side resize + crop), 'cropN' or 'native'")
     parser.add_argument("--frames", type=int, default=24, help="consecutive frames per video (0: all)")
     parser.add_argument("--start", type=int, default=0)
-    parser.add_argument("--grid", type=int, default=None)
     parser.add_argument("--codec", default="libx265")
     parser.add_argument("--preset", default="medium")
     parser.add_argument("--group-size", type=int, default=16)
@@ -123,7 +124,7 @@ def _vs_x265(parser):
         from ..bench.vs_x265 import bench_vs_x265
         return write_report(bench_vs_x265(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames or None,
                                     args.start, args.refine_steps, args.encoder, args.backend, args.weights,
-                                    args.device, args.grid, args.codec, args.preset, args.group_size,
+                                    args.device, args.codec, args.preset, args.group_size,
                                     position_bits=args.position_bits or None, progress=_progress), args.output)
     return run
 
@@ -133,9 +134,9 @@ def _scale(parser):
     parser.add_argument("--seconds", type=float, default=60.0, help="length of the synthetic video")
     parser.add_argument("--resolution", default="1280x720", help="W x H of the synthetic video")
     parser.add_argument("--fps", type=int, default=24)
-    parser.add_argument("--gaussians", type=int, default=1000)
-    parser.add_argument("--grid", type=int, default=1)
-    parser.add_argument("--chunk-clips", type=int, default=4)
+    parser.add_argument("--gaussians", type=int, default=None, help="Gaussians per frame (default: --cell)")
+    parser.add_argument("--cell", type=float, default=6.0, help="source pixels per Gaussian cell side")
+    parser.add_argument("--chunk-frames", type=int, default=16)
     parser.add_argument("--refine", type=int, default=0)
     parser.add_argument("--bits", type=int, default=8, choices=[4, 6, 8])
     parser.add_argument("--render", default="1920x1080", help="render size")
@@ -149,10 +150,32 @@ def _scale(parser):
         w, h = (int(v) for v in args.resolution.lower().split("x"))
         rw, rh = (int(v) for v in args.render.lower().split("x"))
         from ..bench.scale import bench_scale
-        return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.grid, args.chunk_clips,
+        return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.cell, args.chunk_frames,
                                   args.refine, args.bits, rw, rh, args.render_frames or None, 8, args.encoder,
                                   args.backend, args.weights, args.device, args.keep, args.also_encode_video,
                                   progress=_progress), args.output)
+    return run
+
+
+def _picture(parser):
+    parser.add_argument("video")
+    parser.add_argument("--size", default="864x480", help="render size W x H (the Blender scene's)")
+    parser.add_argument("--frames", type=int, default=4, help="consecutive frames encoded")
+    parser.add_argument("--crop", type=int, default=None, help="encode a CROP x CROP centre crop")
+    parser.add_argument("--picture", default=None, help="write the picture here (.png)")
+    _bench_options(parser)
+
+    def run(args) -> dict:
+        from ..bench.picture import bench_presets, save_picture
+        from ..network import resolve_encoder
+        width, height = (int(v) for v in args.size.lower().split("x"))
+        encoder = resolve_encoder(args.encoder, args.backend, args.weights, None if args.device == "auto" else args.device)
+        report = bench_presets(args.video, width=width, height=height, frames=args.frames, encoder=encoder,
+                               crop=args.crop)
+        if args.picture:
+            report["picture"] = str(save_picture(report, args.picture))
+        report = {k: v for k, v in report.items() if not k.startswith("_")}
+        return write_report(report, args.output)
     return run
 
 
@@ -180,6 +203,7 @@ BENCH_COMMANDS = {
                _vs_fit),
     "vs-x265": ("matched-quality pairs, .hgs vs x265: bpp, PSNR, SSIM, encode/decode frames/s", _vs_x265),
     "scale": ("a long (default synthetic 60 s 720p) video end to end: frames/s, peak memory, 1080p render", _scale),
+    "picture": ("each quality preset on a video, rendered at the scene's size: PSNR, s/frame, a picture", _picture),
     "plots": ("plots (docs/*.png) and docs/bench/tables.md from the JSON reports in docs/bench", _plots),
 }
 

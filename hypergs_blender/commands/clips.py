@@ -5,7 +5,6 @@ import json
 import time
 from pathlib import Path
 
-
 # ---- info, export-usd, import-usd ------------------------------------------------------------------
 
 def clip_info(path, verify: bool = False) -> dict:

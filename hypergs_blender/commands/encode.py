@@ -1,22 +1,22 @@
 """`hypergs encode` (video -> Gaussian video file) and `hypergs render` (Gaussian video file -> frames)."""
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..encode import EncodePlan
+from ..encode import QUALITY, EncodePlan
 from ..gaussians import GaussianVideo
-from .options import add_encoder_arguments, encoder_from_args
+from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("encode", help="video -> Gaussian video file (.npz, .hgs, .usd)")
     p.add_argument("video")
     p.add_argument("-o", "--output", required=True)
-    p.add_argument("--gaussians", type=int, default=1000)
-    p.add_argument("--grid", type=int, default=1)
+    add_density_arguments(p, default_cell=QUALITY["standard"]["cell"])
     p.add_argument("--size", type=int, default=None, help="square canvas (short-side resize + crop); default native")
     p.add_argument("--start", type=int, default=0)
     p.add_argument("--stop", type=int, default=None)
@@ -46,7 +46,9 @@ def _encode_command(args) -> None:
         return True
 
     started = time.perf_counter()
-    plan = EncodePlan(args.video, encoder, args.gaussians, args.grid, args.size, args.start, args.stop)
+    plan = EncodePlan(args.video, encoder, **density_from_args(args), size=args.size, start=args.start, stop=args.stop)
+    if plan.layout.note:
+        print(f"hypergs: note: {plan.layout.note}", file=sys.stderr)
     chunks = (params for _, params in plan.chunks(progress, refine=args.refine))
     if Path(args.output).suffix.lower() == ".hgs":
         # Streamed: memory stays bounded by the chunk, and the writer only renames its .part file
@@ -55,17 +57,17 @@ def _encode_command(args) -> None:
         from ..io.hgs import HgsWriter
         bits = (args.position_bits,) * 2 + (args.bits,) * 6
         quantizer = Quantizer.default(plan.width, plan.height, bits)
-        with HgsWriter(args.output, plan.width, plan.height, args.gaussians, quantizer, plan.fps,
-                       (args.grid, args.grid), plan.source) as writer:
+        with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
+                       plan.grid, plan.source) as writer:
             for params in chunks:
                 writer.write(params)
     else:
         from ..io.clips import save_clip
-        video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps,
-                              (args.grid, args.grid), plan.source)
+        video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps, plan.grid,
+                              plan.source)
         save_clip(video, args.output)
     bar.close()
-    print(f"{args.output}: {len(plan.indices)} frames x {args.gaussians} Gaussians "
+    print(f"{args.output}: {len(plan.indices)} frames x {plan.layout.count} Gaussians "
           f"({time.perf_counter() - started:.2f} s)")
 
 

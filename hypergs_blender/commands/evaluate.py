@@ -2,23 +2,26 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
 from ..evaluate import evaluate_video, warm_up
-from .options import add_encoder_arguments, encoder_from_args
+from ..io.frames import probe
+from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="quality and speed of encode -> render on videos")
     p.add_argument("videos", nargs="+")
-    p.add_argument("--gaussians", type=int, default=1000, help="Gaussians per frame (split over grid tiles)")
-    p.add_argument("--grid", type=int, default=1, help="G x G patch-grid encoding")
-    size = p.add_mutually_exclusive_group()
-    size.add_argument("--size", type=int, default=256, help="short-side resize + centre crop to SIZE x SIZE")
-    size.add_argument("--native", action="store_true",
-                      help="centre crop at the video's own short side, no resize (zero-shot high resolution)")
+    add_density_arguments(p, default_cell=8.0)
+    frames = p.add_mutually_exclusive_group()
+    frames.add_argument("--size", type=int, default=256, help="short-side resize + centre crop to SIZE x SIZE")
+    frames.add_argument("--crop", type=int, default=None, help="centre crop CROP x CROP at the video's own resolution")
+    frames.add_argument("--native", action="store_true", help="centre crop at the video's own short side")
+    frames.add_argument("--full", action="store_true", help="whole frames at the video's own resolution")
     p.add_argument("--frames", type=int, default=8, help="frames sampled uniformly from each video")
+    p.add_argument("--tile", type=int, default=None, help="network tile size in working pixels (tests seams)")
     p.add_argument("--json", action="store_true")
     add_encoder_arguments(p)
     p.set_defaults(func=run)
@@ -26,18 +29,33 @@ def add_commands(subparsers) -> None:
 
 def run(args) -> None:
     encoder = encoder_from_args(args)
+    if args.tile:
+        encoder.tile = args.tile
     warm_up(encoder)
-    size = None if args.native else args.size
-    rows = [evaluate_video(v, encoder, args.gaussians, args.grid, size, args.frames, args.refine)
-            for v in args.videos]
-    keys = ["psnr", "ssim", "ms_ssim", "floor_bilinear_psnr", "encode_seconds", "decode_seconds", "encode_fps", "decode_fps"]
+    size = None if (args.native or args.full or args.crop) else args.size
+    rows = []
+    for video in args.videos:
+        crop = args.crop or (min(probe(video).width, probe(video).height) if args.native else None)
+        rows.append(evaluate_video(video, encoder, **density_from_args(args), size=size, crop=crop,
+                                   frames=args.frames, refine=args.refine))
+    for note in sorted({r["note"] for r in rows if r["note"]}):
+        print(f"hypergs: note: {note}", file=sys.stderr)
+    keys = ["psnr", "ssim", "ms_ssim", "floor_bilinear_psnr", "gaussians", "edge_bias", "encode_seconds",
+            "decode_seconds", "encode_fps", "decode_fps"]
     mean = {k: float(np.mean([r[k] for r in rows])) for k in keys}
-    report = dict(encoder=getattr(encoder, "name", "?"), gaussians=args.gaussians, grid=args.grid,
-                  size="native" if args.native else args.size, frames=args.frames, videos=rows, mean=mean)
+    seams = [r["seam_ratio"] for r in rows if r["seam_ratio"] is not None]
+    mean["seam_ratio"] = float(np.mean(seams)) if seams else None
+    ripple = [r["flat_ripple"] for r in rows if r["flat_ripple"]["blocks"]]
+    mean["flat_ripple_render_std"] = float(np.mean([f["render_std"] for f in ripple])) if ripple else None
+    mean["flat_ripple_source_std"] = float(np.mean([f["source_std"] for f in ripple])) if ripple else None
+    report = dict(encoder=encoder.name, density=density_from_args(args), refine=args.refine,
+                  frames_from=("native" if args.native else "full" if args.full else f"crop {args.crop}" if args.crop
+                               else f"size {args.size}"),
+                  frames=args.frames, videos=rows, mean=mean)
     if args.json:
         print(json.dumps(report, indent=2))
         return
-    for r in rows + [dict(video="mean", size=report["size"], **mean)]:
-        print(f"{r['video']:40s} {r['psnr']:6.2f} dB (bilinear floor {r['floor_bilinear_psnr']:.2f})  "
-              f"SSIM {r['ssim']:.4f}  MS-SSIM {r['ms_ssim']:.4f}  "
-              f"encode {r['encode_fps']:7.1f} fps  decode {r['decode_fps']:7.1f} fps")
+    for r in rows + [dict(video="mean", **mean)]:
+        print(f"{r['video']:40s} {r['psnr']:6.2f} dB (bilinear floor {r['floor_bilinear_psnr']:.2f}) "
+              f"N {r['gaussians']:.0f}  SSIM {r['ssim']:.4f}  MS-SSIM {r['ms_ssim']:.4f}  "
+              f"encode {r['encode_fps']:7.2f} fps  decode {r['decode_fps']:7.1f} fps")

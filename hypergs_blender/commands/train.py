@@ -13,19 +13,25 @@ from ..training.sources import DEFAULT_ROOT
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the HyperGS network")
     p.add_argument("--out", default="runs/small", help="run folder (checkpoint, log); resumes from it")
-    p.add_argument("--preset", default="small", choices=sorted(PRESETS))
-    p.add_argument("--parametrization", choices=["local", "paper"], help="override the preset's")
+    p.add_argument("--preset", default="conv", choices=sorted(PRESETS),
+                   help="conv: the default network; small / paper: the paper's transformer design")
+    p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
+    p.add_argument("--init-from", default=None,
+                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's")
     p.add_argument("--data", default=DEFAULT_SPEC, help="training.data.build_sources spec")
     p.add_argument("--data-root", default=DEFAULT_ROOT)
     p.add_argument("--eval-videos", nargs="*", default=[],
                    help="videos whose PSNR is logged at every evaluation (reporting only)")
     p.add_argument("--steps", type=int, default=20000, help="total steps of the cosine schedule")
     p.add_argument("--minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
-    p.add_argument("--batch", type=int, default=4, help="clips per step per process")
-    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--batch", type=int, default=None, help="clips per step per process (conv 8, transformer 4)")
+    p.add_argument("--size", type=int, default=128, help="crop size of the conv network's training frames")
+    p.add_argument("--lr", type=float, default=None, help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
+    p.add_argument("--clip", type=float, default=None, help="gradient norm clipping (conv 0.5, transformer 1.0)")
     p.add_argument("--warmup", type=int, default=200)
     p.add_argument("--min-lr-ratio", type=float, default=0.1)
-    p.add_argument("--gaussians", default="64:1024", help="N per frame, log-uniform in MIN:MAX per step")
+    p.add_argument("--gaussians", default="64:1024",
+                   help="transformer: N per frame, log-uniform in MIN:MAX per step (conv: one per 4x4 pixels)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--log-every", type=int, default=20)
     p.add_argument("--eval-every", type=int, default=250)

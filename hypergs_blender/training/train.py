@@ -1,12 +1,20 @@
-"""`hypergs train`: LAMB, cosine schedule, checkpoints with exact resume, periodic evaluation.
+"""`hypergs train`: warm-up + cosine schedule, gradient clipping, checkpoints with exact resume,
+periodic evaluation, resident memory in the log.
 
-The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on
-GPUs, gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of
-(seed, step, rank)), rank 0 logs, evaluates and writes checkpoints.
+The conv network (the default) trains on single frames: batches of random `--size` crops (photo pans
+at random scales, procedural scenes), one Gaussian per 4x4 pixels, MSE of the render against the
+crop, AdamW. The paper's transformer (presets small/paper) trains on T-frame clips with a Gaussian
+count drawn per step, MSE plus the adaptive erank/scale regularizers, LAMB.
 
-The run folder holds `checkpoint.pt` (written atomically every --checkpoint-every steps and at
-the end), `log.jsonl` (one line per logged step and per evaluation, with wall time: the
-PSNR-vs-training-time curve) and, from `hypergs export`, the weights.
+The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on GPUs,
+gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of (seed,
+step, rank)), rank 0 logs, evaluates and writes checkpoints. A run stopped at any point (Ctrl-C,
+--minutes, a killed machine) continues exactly from its last checkpoint, also on another device.
+
+The run folder holds `checkpoint.pt` (written atomically every --checkpoint-every steps and at the
+end; tensors and plain values only, so it loads with weights_only=True), `log.jsonl` (one line per
+logged step and per evaluation, with wall and CPU time and RSS: the PSNR-vs-CPU-hours curve) and,
+from `hypergs export`, the weights.
 """
 from __future__ import annotations
 
@@ -23,12 +31,18 @@ import torch
 import torch.distributed as dist
 
 from ..io.frames import read_frames
-from ..model import PRESETS, HyperGS, ModelConfig, anchor_inputs
+from ..io.images import resize_exact
+from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
 from . import data
 from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
 from .sources import make_batch
+
+EVAL_SIZE = 256  # evaluation frames: 256 x 256
+EVAL_CELLS = (8, 4)  # source pixels per Gaussian at evaluation: 1024 and 4096 Gaussians on 256 x 256
+# Options whose default depends on the design (each measured on it): learning rate, gradient clipping, clips per step.
+ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8), "transformer": dict(lr=2e-3, clip=1.0, batch=4)}
 
 
 def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float) -> float:
@@ -46,6 +60,15 @@ def gaussians_for_step(spec: str, seed: int, step: int) -> int:
 
 def psnr_db(mse: float) -> float:
     return 10 * math.log10(1 / max(mse, 1e-12))
+
+
+def rss_mb() -> float:
+    """Resident memory of this process (MiB), 0 where /proc is missing."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError):
+        return 0.0
 
 
 class Prefetcher:
@@ -67,6 +90,22 @@ class Prefetcher:
         return batch
 
 
+def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]."""
+    b, t, size = frames.shape[:3]
+    if isinstance(getattr(model, "module", model), ConvGS):
+        frames = frames.reshape(b * t, size, size, 3)
+        params = model(frames).float()
+    else:
+        anchors, cell = anchor_inputs(n, frames.device)
+        params = model(frames, anchors, cell).float()
+    mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2)
+    if regularizer is None:
+        return mse, mse, {}
+    reg_loss, stats = regularizer(params[..., 2:4])
+    return mse + reg_loss, mse, stats
+
+
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
     distributed = "RANK" in os.environ
@@ -82,120 +121,151 @@ def run(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "checkpoint.pt"
-    resume = torch.load(checkpoint_path, map_location="cpu", weights_only=False) if checkpoint_path.exists() else None
-    if resume:
-        cfg = ModelConfig(**resume["config"])
-    else:
-        cfg = ModelConfig(**asdict(PRESETS[args.preset]))
-        if args.parametrization:
-            cfg.parametrization = args.parametrization
+    resume = torch.load(checkpoint_path, map_location="cpu", weights_only=True) if checkpoint_path.exists() else None
+    config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])
+    if not resume and args.parametrization:
+        config["parametrization"] = args.parametrization
+    for key, value in ARCH_DEFAULTS[config["arch"]].items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     torch.manual_seed(args.seed)
-    model = HyperGS(cfg).to(device)
-    regularizer = AdaptiveRegularizer().to(device)
-    optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
-    step, wall = 0, 0.0
+    model = build_model(config).to(device)
+    conv = isinstance(model, ConvGS)
+    if not resume and args.init_from and conv:  # warm start from exported weights of the same design
+        from safetensors.torch import load_file
+        model.load_state_dict(load_file(str(args.init_from)))
+    regularizer = None if conv else AdaptiveRegularizer().to(device)
+    if conv:
+        optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
+    else:
+        optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
+    step, wall, cpu = 0, 0.0, 0.0
     if resume:
         model.load_state_dict(resume["model"])
-        regularizer.load_state_dict(resume["regularizer"])
+        if regularizer is not None:
+            regularizer.load_state_dict(resume["regularizer"])
         optimizer.load_state_dict(resume["optimizer"])
-        step, wall = resume["step"], resume["wall_seconds"]
+        step, wall, cpu = int(resume["step"]), float(resume["wall_seconds"]), float(resume["cpu_seconds"])
         torch.set_rng_state(resume["torch_rng"])
     train_model = torch.nn.parallel.DistributedDataParallel(model) if distributed else model
 
     sources = data.build_sources(args.data, args.data_root)
-    size, frames_per_clip = cfg.canvas, cfg.clip_frames
+    frames_per_clip = 1 if conv else model.cfg.clip_frames
+    size = args.size if conv else model.cfg.canvas
     prefetch = Prefetcher(lambda s: make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size))
-    evaluator = Evaluator(cfg, args.data_root, args.eval_videos) if rank == 0 else None
+    evaluator = Evaluator(args.data_root, args.eval_videos) if rank == 0 else None
     log = open(out / "log.jsonl", "a") if rank == 0 else None
     if rank == 0:
-        print(f"training {cfg.parametrization} model, {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
-              f"parameters, from step {step} of {args.steps} -> {out}", flush=True)
+        print(f"training {config['arch']} model, {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
+              f"parameters, from step {step} of {args.steps} on {device} -> {out}", flush=True)
 
     def save():
-        state = dict(model=model.state_dict(), regularizer=regularizer.state_dict(), optimizer=optimizer.state_dict(),
-                     step=step, wall_seconds=wall, config=asdict(cfg), args=vars(args) | {"func": None},
+        state = dict(model=model.state_dict(), optimizer=optimizer.state_dict(), step=step, wall_seconds=wall,
+                     cpu_seconds=cpu, config=json.dumps(config), args=json.dumps(_plain(vars(args))),
                      torch_rng=torch.get_rng_state())
+        if regularizer is not None:
+            state["regularizer"] = regularizer.state_dict()
         tmp = checkpoint_path.with_suffix(".tmp")
         torch.save(state, tmp)
         os.replace(tmp, checkpoint_path)
 
     from tqdm import tqdm
     bar = tqdm(total=args.steps, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
-    started = time.perf_counter() - wall
-    run_started = time.perf_counter()
+    started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
     prefetch.start(step)
     amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
-    while step < args.steps:
-        frames = torch.from_numpy(prefetch.get(step)).to(device)
-        n = gaussians_for_step(args.gaussians, args.seed, step)
-        if step + 1 < args.steps:
-            prefetch.start(step + 1)
-        lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
-        for group in optimizer.param_groups:
-            group["lr"] = lr * group.get("lr_scale", 1.0)
-        anchors, cell = anchor_inputs(n, device)
-        with amp:
-            params = train_model(frames, anchors, cell)
-        params = params.float()
-        render = render_torch(params, size, size, size, size)
-        mse = torch.mean((render - frames) ** 2)
-        reg_loss, reg_stats = regularizer(params[..., 2:4])
-        loss = mse + reg_loss
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        optimizer.step()
-        step += 1
-        wall = time.perf_counter() - started
+    try:
+        while step < args.steps:
+            frames = torch.from_numpy(prefetch.get(step)).to(device)
+            n = gaussians_for_step(args.gaussians, args.seed, step)
+            if step + 1 < args.steps:
+                prefetch.start(step + 1)
+            lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
+            for group in optimizer.param_groups:
+                group["lr"] = lr * group.get("lr_scale", 1.0)
+            with amp:
+                loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip))
+            optimizer.step()
+            step += 1
+            wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
+            if rank == 0:
+                train_psnr = psnr_db(float(mse.detach()))
+                bar.set_postfix(psnr=f"{train_psnr:.2f}", refresh=False)
+                bar.update(1)
+                if step % args.log_every == 0:
+                    record = dict(step=step, wall=round(wall, 1), cpu=round(cpu, 1), lr=lr, loss=float(loss.detach()),
+                                  psnr=round(train_psnr, 3), grad_norm=round(grad_norm, 4), rss_mb=round(rss_mb()),
+                                  **stats)
+                    if not conv:
+                        record["n"] = n
+                    log.write(json.dumps(record) + "\n")
+                    log.flush()
+                if step % args.checkpoint_every == 0 or step == args.steps:
+                    save()
+                if step % args.eval_every == 0 or step == args.steps:
+                    model.eval()
+                    record = dict(step=step, wall=round(wall, 1), cpu=round(cpu, 1), eval=evaluator(model, device))
+                    model.train()
+                    log.write(json.dumps(record) + "\n")
+                    log.flush()
+                    bar.write(f"step {step} cpu {cpu / 3600:.2f} h eval {json.dumps(record['eval'])}")
+            if args.minutes is not None and time.perf_counter() - run_started > args.minutes * 60:
+                break
+    finally:
         if rank == 0:
-            train_psnr = psnr_db(mse.item())
-            bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{train_psnr:.2f}", erank_min=f"{reg_stats['erank_min']:.3f}",
-                            n=n, refresh=False)
-            bar.update(1)
-            if step % args.log_every == 0:
-                log.write(json.dumps(dict(step=step, wall=round(wall, 1), lr=lr, n=n, loss=float(loss),
-                                          psnr=train_psnr, **reg_stats)) + "\n")
-                log.flush()
-            if step % args.checkpoint_every == 0 or step == args.steps:
-                save()
-            if step % args.eval_every == 0 or step == args.steps:
-                model.eval()
-                record = dict(step=step, wall=round(wall, 1), eval=evaluator(model, device))
-                model.train()
-                log.write(json.dumps(record) + "\n")
-                log.flush()
-                bar.write(f"step {step} wall {wall / 60:.1f} min eval {json.dumps(record['eval'])}")
-        if args.minutes is not None and time.perf_counter() - run_started > args.minutes * 60:
-            break
-    if rank == 0:
-        save()
-        bar.close()
-        print(f"stopped at step {step}, {wall / 60:.1f} min of training; checkpoint {checkpoint_path}", flush=True)
-    if distributed:
-        dist.destroy_process_group()
+            save()
+            bar.close()
+            print(f"stopped at step {step}, {cpu / 3600:.2f} CPU hours ({wall / 3600:.2f} h wall) of training; "
+                  f"checkpoint {checkpoint_path}", flush=True)
+        if distributed:
+            dist.destroy_process_group()
+
+
+def _plain(values: dict) -> dict:
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items() if not callable(v)}
 
 
 class Evaluator:
-    """PSNR at the canvas size on fixed held-out clips (photos + procedural) and, for reporting only
-    (never for training decisions), on the videos given with --eval-videos."""
+    """PSNR on fixed held-out frames at 256 x 256 at two densities (1024 and 4096 Gaussians): the held-out
+    photos' pans and procedural clips (`val`), and, for reporting only (never for training decisions),
+    the videos given with --eval-videos. Conv models encode the frames as encode.py does (resized to the
+    working size); transformers on their canvas."""
 
-    def __init__(self, cfg: ModelConfig, data_root: str, videos=(), counts=(250, 1000)):
-        self.cfg, self.counts = cfg, counts
-        self.clips = {"val": data.validation_clips(data_root, cfg.clip_frames, cfg.canvas, 8)}
+    def __init__(self, data_root: str, videos=(), frames_per_video: int = 4):
+        clips = data.validation_clips(data_root, 2, EVAL_SIZE, 8)
+        self.sets = {"val": (clips.reshape(-1, EVAL_SIZE, EVAL_SIZE, 3) * 255 + 0.5).astype(np.uint8)}
         for path in map(Path, videos):
-            frames, _, _ = read_frames(path, cfg.clip_frames, size=cfg.canvas)
-            self.clips[f"video_{path.stem}"] = (frames[None] / 255.0).astype(np.float32)
+            self.sets[f"video_{path.stem}"] = read_frames(path, frames_per_video, size=EVAL_SIZE)[0]
 
     @torch.no_grad()
     def __call__(self, model, device) -> dict:
         results = {}
-        for name, clips in self.clips.items():
-            for n in self.counts:
-                # Gaussian density as at 256 x 256 with N per frame: the canvas holds N * (c/256)^2.
-                n_canvas = max(16, round(n * (self.cfg.canvas / 256) ** 2))
-                anchors, cell = anchor_inputs(n_canvas, device)
-                frames = torch.from_numpy(clips).to(device)
-                c = self.cfg.canvas
-                render = render_torch(model(frames, anchors, cell).float(), c, c, c, c)
-                results[f"{name}_n{n}"] = round(psnr_db(float(torch.mean((render.clamp(0, 1) - frames) ** 2))), 3)
+        for name, frames in self.sets.items():
+            target = torch.from_numpy(frames).float().to(device) / 255
+            for cell in EVAL_CELLS:
+                params = self._encode(model, frames, cell, device)
+                render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
+                mse = ((render - target) ** 2).mean((1, 2, 3))
+                n = (EVAL_SIZE // cell) ** 2
+                results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
         return results
+
+    @staticmethod
+    def _encode(model, frames: np.ndarray, cell: int, device) -> torch.Tensor:
+        n = (EVAL_SIZE // cell) ** 2
+        if isinstance(model, ConvGS):
+            work = EVAL_SIZE * model.cfg.stride // cell
+            small = np.stack([resize_exact(f, work, work) for f in frames]).astype(np.float32) / 255
+            params = model(torch.from_numpy(small).to(device)).float()
+            params[..., 2:4] *= cell / model.cfg.stride  # working pixels -> 256 x 256 pixels
+            return params
+        canvas, t = model.cfg.canvas, model.cfg.clip_frames
+        clips = np.stack([resize_exact(f, canvas, canvas) for f in frames]).astype(np.float32) / 255
+        clips = clips.reshape(-1, t, canvas, canvas, 3)  # the evaluation sets hold multiples of 4 frames
+        anchors, spacing = anchor_inputs(n, device)
+        params = model(torch.from_numpy(clips).to(device), anchors, spacing).float().reshape(-1, n, 8)
+        params[..., 2:4] *= EVAL_SIZE / canvas
+        return params

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import bpy
 
+from . import draw, splat
 from .geometry import evaluated_clips, render_clips
-
-# Viewport renders are rasterized at most this many pixels on the long side, then drawn scaled.
-VIEWPORT_MAX_SIZE = 640
 
 
 class HyperGSRenderEngine(bpy.types.RenderEngine):
@@ -15,10 +13,11 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
     bl_label = "HyperGS"
     bl_use_preview = False
     bl_use_postprocess = True
+    bl_use_gpu_context = splat.gpu_context_possible()  # F12 splats on the GPU where it can (engine/splat.py)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._view = None  # viewport cache: (key, texture, size)
+        self._view = draw.ViewCache()
 
     def render(self, depsgraph):
         width, height = self.resolution_x, self.resolution_y
@@ -31,7 +30,10 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
             return not self.test_break()
 
         problems = []
-        rgba = render_clips(evaluated_clips(depsgraph, problems=problems), width, height, keep_going)
+        clips = list(evaluated_clips(depsgraph, problems=problems))
+        rgba = splat.render_clips(clips, width, height) if self.bl_use_gpu_context else None
+        if rgba is None:  # no GPU context, or an image too large for the GPU: the numpy path
+            rgba = render_clips(clips, width, height, keep_going)
         for problem in problems:
             # A warning, not an error: Blender treats an ERROR report as a failed frame (no image is
             # written, Ctrl-F12 stops, bpy.ops.render.render raises). The other clips still render.
@@ -43,11 +45,10 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
         self.end_result(result)
 
     def view_update(self, context, depsgraph):
-        self._view = None
+        self._view.invalidate()
 
     def view_draw(self, context, depsgraph):
-        from . import draw
-        self._view = draw.view_draw(self, context, depsgraph, self._view, VIEWPORT_MAX_SIZE)
+        draw.view_draw(self, context, depsgraph, self._view)
 
 
 # Built-in panels (output size, frame range, colour management, mesh data, ...) show only for the

@@ -1,11 +1,13 @@
-"""Viewport drawing for the engine's Rendered mode: the frame is rasterized on the CPU (as F12 does)
-and drawn as a texture through the display-space shader (view transform and display device apply).
-Only called where Blender has a GPU context (never in background mode)."""
+"""Viewport drawing for the engine's Rendered mode: the part of the render frame that shows in the region is
+splatted on the GPU (engine/splat.py) at one image pixel per region pixel and drawn through the display-space
+shader (view transform and display device apply). Only called where Blender has a GPU context."""
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from .geometry import evaluated_clips, render_clips
+from . import splat
+from .geometry import evaluated_clips
+from ..hypergs_blender.splat import splat_rows
 
 
 def frame_rect(context, scene) -> tuple[float, float, float, float]:
@@ -30,28 +32,51 @@ def frame_rect(context, scene) -> tuple[float, float, float, float]:
     return (w - fw) / 2, (h - fh) / 2, fw, fh
 
 
-def raster_size(rect_w: float, rect_h: float, max_size: int) -> tuple[int, int]:
-    scale = min(1.0, max_size / max(rect_w, rect_h, 1))
-    return max(1, round(rect_w * scale)), max(1, round(rect_h * scale))
+def visible_window(rect, region_width: int, region_height: int):
+    """The frame rect (x, y, w, h) (region pixels, y up) rendered at one image pixel per region pixel:
+    the image size (W, H) and the window of it inside the region, (x, y, w, h) in image pixels from its
+    top-left corner; the window is None when no part of the frame shows."""
+    x, y, w, h = rect
+    size = (max(1, round(w)), max(1, round(h)))
+    sx, sy = size[0] / max(w, 1e-9), size[1] / max(h, 1e-9)  # image pixels per region pixel
+    j0, j1 = max(0, math.floor(-x * sx)), min(size[0], math.ceil((region_width - x) * sx))
+    i0, i1 = max(0, math.floor((y + h - region_height) * sy)), min(size[1], math.ceil((y + h) * sy))
+    if j1 <= j0 or i1 <= i0:
+        return size, None
+    return size, (j0, i0, j1 - j0, i1 - i0)
 
 
-def make_texture(rgba: np.ndarray):
-    import gpu
-    h, w = rgba.shape[:2]
-    buffer = gpu.types.Buffer("FLOAT", w * h * 4, np.ascontiguousarray(rgba, np.float32).ravel())
-    return gpu.types.GPUTexture((w, h), format="RGBA16F", data=buffer)
+class ViewCache:
+    """What the viewport shows: the drawn window's key and its splat image (kept between frames: playback
+    redraws into the same offscreens)."""
+
+    def __init__(self):
+        self.key = None
+        self.image = None
+
+    def invalidate(self):
+        self.key = None
+
+    def image_of_size(self, width: int, height: int):
+        if self.image is None or self.image.size != (width, height):
+            if self.image is not None:
+                self.image.free()
+            self.image = splat.SplatImage(width, height)
+        return self.image
 
 
-def view_draw(engine, context, depsgraph, cache, max_size: int):
-    """Draw the current frame; returns the cache to keep ((key, texture) or None)."""
+def view_draw(engine, context, depsgraph, cache: ViewCache) -> None:
+    """Draw the current frame into the region."""
     import gpu
     from gpu_extras.presets import draw_texture_2d
 
     scene = depsgraph.scene
-    x, y, w, h = frame_rect(context, scene)
-    size = raster_size(w, h, max_size)
-    key = (scene.frame_current, size)
-    if cache is None or cache[0] != key:
+    rect = frame_rect(context, scene)
+    size, window = visible_window(rect, context.region.width, context.region.height)
+    if window is None:
+        return
+    key = (scene.frame_current + scene.frame_subframe, size, window)
+    if cache.key != key:
         view_layer = depsgraph.view_layer
 
         def visible(ob):
@@ -60,11 +85,14 @@ def view_draw(engine, context, depsgraph, cache, max_size: int):
             except (TypeError, RuntimeError, ReferenceError):
                 return True
 
-        rgba = render_clips(evaluated_clips(depsgraph, visible), size[0], size[1])
-        cache = (key, make_texture(rgba))
+        clips = [(params, cw, ch) for _, params, cw, ch in evaluated_clips(depsgraph, visible)]
+        cache.image_of_size(window[2], window[3]).draw(splat_rows(clips, *size, window), window[:2])
+        cache.key = key
+    x, y, w, h = rect
+    j, i, ww, wh = window
+    sx, sy = w / size[0], h / size[1]  # region pixels per image pixel
     gpu.state.blend_set("ALPHA_PREMULT")
     engine.bind_display_space_shader(scene)
-    draw_texture_2d(cache[1], (x, y), w, h)
+    draw_texture_2d(cache.image.texture, (x + j * sx, y + h - (i + wh) * sy), ww * sx, wh * sy)
     engine.unbind_display_space_shader()
     gpu.state.blend_set("NONE")
-    return cache

@@ -46,12 +46,69 @@ SIGMA_CUTOFF = 3.0
 MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or 3-sigma radius >= 1e7 px as invalid
 
 
-def box_radii(chol: "torch.Tensor") -> "torch.Tensor":
-    """Half-widths (rx, ry) of each Gaussian's 3-sigma box, from (l11, l21, l22)."""
-    import torch
+def box_radii(chol):
+    """Half-widths (rx, ry) of each Gaussian's 3-sigma box, from (l11, l21, l22) [..., 3]: numpy or torch,
+    computed in chol's dtype (float32 input gives the float32 radii every float32 path tests against)."""
+    if isinstance(chol, np.ndarray):
+        xp = np
+    else:
+        import torch as xp
+    l11, l21, l22 = chol[..., 0], chol[..., 1], chol[..., 2]
+    return xp.stack([SIGMA_CUTOFF * xp.abs(l11), SIGMA_CUTOFF * xp.sqrt(l21 * l21 + l22 * l22)], -1)
 
-    l11, l21, l22 = chol.unbind(-1)
-    return SIGMA_CUTOFF * torch.stack([l11.abs(), torch.sqrt(l21 * l21 + l22 * l22)], dim=-1)
+
+def touching(means: np.ndarray, chol: np.ndarray, width: int, height: int):
+    """Which Gaussians (float64 means [M, 2], chol [M, 3]) can touch a pixel of a width x height image, and
+    the pixel bounds (x0, x1, y0, y1) [M] (float, unclipped) of their 3-sigma boxes with one pixel of margin
+    either side: the exact |dx| <= r test is the caller's. Invalid Gaussians touch nothing (`valid`)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        rx, ry = box_radii(chol).T
+        ok = valid(means, chol, rx, ry)
+        x0 = np.floor(means[:, 0] - rx - 0.5)
+        x1 = np.ceil(means[:, 0] + rx - 0.5)
+        y0 = np.floor(means[:, 1] - ry - 0.5)
+        y1 = np.ceil(means[:, 1] + ry - 0.5)
+        ok &= (x1 >= 0) & (x0 <= width - 1) & (y1 >= 0) & (y0 <= height - 1)
+    return ok, (x0, x1, y0, y1)
+
+
+def valid(means: np.ndarray, chol: np.ndarray, rx: np.ndarray, ry: np.ndarray) -> np.ndarray:
+    """The Gaussians every fast path draws: finite, l11 != 0 and l22 != 0, |mean| and 3-sigma radii (rx, ry)
+    below MAX_EXTENT px (as the numba path). (NaN and inf fail the comparisons with MAX_EXTENT.)"""
+    with np.errstate(invalid="ignore"):
+        return ((np.abs(means[:, 0]) < MAX_EXTENT) & (np.abs(means[:, 1]) < MAX_EXTENT) & (rx < MAX_EXTENT)
+                & (ry < MAX_EXTENT) & (chol[:, 0] != 0) & (chol[:, 2] != 0))
+
+
+def box_pixels(means: np.ndarray, chol: np.ndarray, columns: tuple[int, int], rows: tuple[int, int]):
+    """The pixels inside each Gaussian's 3-sigma box, exactly as the rasterizers decide them (the float32 test
+    |k + 0.5 - m| <= r on float32 means [M, 2] and chol [M, 3]), within the columns [c0, c1) and rows [r0, r1)
+    of an image: ok [M] (valid and not empty there), and the first and last column and row (x0, x1, y0, y1)
+    [M] int32 (meaningful where ok)."""
+    means = np.asarray(means, np.float32)
+    chol = np.asarray(chol, np.float32)
+    radii = box_radii(chol)
+    half = np.float32(0.5)
+    with np.errstate(invalid="ignore", over="ignore"):
+        ok = valid(means, chol, radii[:, 0], radii[:, 1])
+        spans = []
+        for axis, (start, stop) in enumerate((columns, rows)):
+            m, r = means[:, axis], radii[:, axis]
+
+            def inside(k):
+                return np.abs((k + half) - m) <= r
+
+            # The edges in exact arithmetic (float64 holds m -+ r - 0.5 exactly), kept near the window. The
+            # float32 test rounds k + 0.5 - m to nearest, which never passes r (a float32 itself): it can only
+            # let in one more pixel at either end.
+            lo = np.clip(np.ceil((m.astype(np.float64) - r) - 0.5), start - 1, stop).astype(np.float32)
+            hi = np.clip(np.floor((m.astype(np.float64) + r) - 0.5), start - 1, stop).astype(np.float32)
+            lo -= inside(lo - 1)
+            hi += inside(hi + 1)
+            lo, hi = np.maximum(lo, start), np.minimum(hi, stop - 1)
+            ok &= lo <= hi
+            spans += [np.where(ok, lo, 0).astype(np.int32), np.where(ok, hi, 0).astype(np.int32)]
+    return ok, tuple(spans)
 
 
 def rasterize_reference(means: "torch.Tensor", chol: "torch.Tensor", colors: "torch.Tensor",
@@ -115,17 +172,7 @@ def _patch_plan(means: np.ndarray, chol: np.ndarray, width: int, height: int, bu
     """For flattened Gaussians means [M, 2], chol [M, 3] (float64): patch origins (x0, y0) [M] int64 and a
     list of chunks (indices, kh, kw) such that chunk size * kh * kw <= budget (or one Gaussian).
     Invalid (non-finite, l11 = 0 or l22 = 0) and off-screen Gaussians are in no chunk."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        rx = SIGMA_CUTOFF * np.abs(chol[:, 0])
-        ry = SIGMA_CUTOFF * np.sqrt(chol[:, 1] ** 2 + chol[:, 2] ** 2)
-        ok = np.isfinite(means).all(1) & np.isfinite(chol).all(1) & (chol[:, 0] != 0) & (chol[:, 2] != 0)
-        ok &= (np.abs(means).max(1) < MAX_EXTENT) & (rx < MAX_EXTENT) & (ry < MAX_EXTENT)  # as the numba path
-        # One pixel of margin either side; the exact |dx| <= r test happens on the patch.
-        fx0 = np.floor(means[:, 0] - rx - 0.5)
-        fx1 = np.ceil(means[:, 0] + rx - 0.5)
-        fy0 = np.floor(means[:, 1] - ry - 0.5)
-        fy1 = np.ceil(means[:, 1] + ry - 0.5)
-        ok &= (fx1 >= 0) & (fx0 <= width - 1) & (fy1 >= 0) & (fy0 <= height - 1)
+    ok, (fx0, fx1, fy0, fy1) = touching(means, chol, width, height)  # the exact test happens on the patch
     x0 = np.clip(np.where(ok, fx0, 0), 0, width - 1).astype(np.int64)
     x1 = np.clip(np.where(ok, fx1, 0), 0, width - 1).astype(np.int64)
     y0 = np.clip(np.where(ok, fy0, 0), 0, height - 1).astype(np.int64)
@@ -202,8 +249,7 @@ def _numpy_forward(means, chol, colors, width, height, budget=_NUMPY_BUDGET):
             iy = y0[idx, None] + np.arange(kh)  # [n, kh]
             dx = (jx.astype(f32) + f32(0.5)) - m[:, 0, None]
             dy = (iy.astype(f32) + f32(0.5)) - m[:, 1, None]
-            rx = f32(SIGMA_CUTOFF) * np.abs(l[:, 0])
-            ry = f32(SIGMA_CUTOFF) * np.sqrt(l[:, 1] * l[:, 1] + l[:, 2] * l[:, 2])
+            rx, ry = box_radii(l).T
             u = dx / l[:, 0, None]
             # Outside the box: u^2 = inf (columns), dy = inf (rows), so that exp(-0.5 (u^2 + v^2)) = 0.
             uu = np.where((np.abs(dx) <= rx[:, None]) & (jx < width), u * u, f32(np.inf))

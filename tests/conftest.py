@@ -40,13 +40,14 @@ def make_pan_clip(path, width=432, height=240, frames=70):
     return path
 
 
-def run_blender_session(script, work: Path, encoder: str, timeout: float) -> tuple[dict, str]:
+def run_blender_session(script, work: Path, encoder: str, timeout: float, env: dict | None = None) -> tuple[dict, str]:
     """Build the extension zip, then run `script ZIP WORK OUT.json` in a fresh Python (bpy can be
-    imported once per process) with $HYPERGS_ENCODER defaulting to `encoder`. Returns the steps'
-    results and the session's console output (Blender prints render reports there)."""
+    imported once per process) with $HYPERGS_ENCODER defaulting to `encoder` and the variables `env`
+    added. Returns the steps' results and the session's console output (Blender prints render reports there)."""
     from hypergs_blender.bench.blender import build_zip
     zip_path = build_zip(work / "dist")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder))
+    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder),
+               **(env or {}))
     out = work / "session.json"
     python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
     proc = subprocess.run([python, str(script), str(zip_path), str(work), str(out)], env=env,

@@ -153,13 +153,6 @@ def test_reencode_replaces_points_and_keeps_modifiers(session):
     assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
 
 
-def test_viewport_texture_draws(session):
-    r = step(session, "viewport_texture")
-    if r.get("skipped"):
-        pytest.skip(r["skipped"])
-    assert r["max_error"] < 2e-3
-
-
 # ----------------------------------------------------------------------------------------------------
 # Blender side (run as a script: python test_blender_addon.py ZIP WORKDIR OUT.json)
 
@@ -490,10 +483,6 @@ def run_session(zip_path, work, out_path):
                     modifiers=[m.name for m in again.modifiers], display_points=display_points(bpy, again),
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
-    @record("viewport_texture")
-    def _():
-        return viewport_texture_check(bpy, addon)
-
     return results
 
 
@@ -593,56 +582,6 @@ def snapshot(bpy):
 
 def diff(a, b):
     return {k: (a.get(k), b.get(k)) for k in set(a) | set(b) if a.get(k) != b.get(k)}
-
-
-def viewport_texture_check(bpy, addon):
-    """The viewport's upload path (numpy -> GPU texture -> drawn) inside a render with a GPU context:
-    Blender has no window here, so view_draw itself cannot run; this checks what it draws with."""
-    import gpu
-    draw = _import(addon, "engine.draw")
-    found = {}
-
-    class Probe(bpy.types.RenderEngine):
-        bl_idname = "HYPERGS_TEST_PROBE"
-        bl_label = "probe"
-        bl_use_gpu_context = True
-
-        def render(self, depsgraph):
-            try:
-                rng = np.random.default_rng(0)
-                rgba = rng.uniform(0, 1, (24, 40, 4)).astype(np.float32)
-                texture = draw.make_texture(rgba)
-                offscreen = gpu.types.GPUOffScreen(40, 24, format="RGBA32F")
-                with offscreen.bind():
-                    from gpu_extras.presets import draw_texture_2d
-                    from mathutils import Matrix
-                    fb = gpu.state.active_framebuffer_get()
-                    fb.clear(color=(0, 0, 0, 0))
-                    with gpu.matrix.push_pop():
-                        gpu.matrix.load_matrix(Matrix.Identity(4))
-                        gpu.matrix.load_projection_matrix(Matrix.Identity(4))
-                        gpu.matrix.translate((-1, -1))
-                        gpu.matrix.scale((2 / 40, 2 / 24))
-                        draw_texture_2d(texture, (0, 0), 40, 24)
-                    pixels = np.array(fb.read_color(0, 0, 40, 24, 4, 0, "FLOAT").to_list(), np.float32)
-                offscreen.free()
-                found["max_error"] = float(np.abs(pixels.reshape(24, 40, 4) - rgba).max())
-            except Exception as e:  # no GPU context on this machine
-                found["skipped"] = f"no GPU drawing here: {type(e).__name__}: {e}"
-            result = self.begin_result(0, 0, 4, 4)
-            self.end_result(result)
-
-    bpy.utils.register_class(Probe)
-    sc = bpy.context.scene
-    engine = sc.render.engine
-    sc.render.engine = Probe.bl_idname
-    sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = 4, 4, 100
-    try:
-        bpy.ops.render.render()
-    finally:
-        sc.render.engine = engine
-        bpy.utils.unregister_class(Probe)
-    return found or {"skipped": "the probe engine did not run"}
 
 
 if __name__ == "__main__":

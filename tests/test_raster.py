@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from hypergs_blender.gaussians import render_inputs
-from hypergs_blender.raster import numba_available, rasterize, rasterize_numpy, rasterize_reference
+from hypergs_blender.raster import box_pixels, box_radii, numba_available, rasterize, rasterize_numpy, rasterize_reference
 
 TORCH_BACKENDS = ["numba", "torch"] if numba_available() else ["torch"]
 NUMPY_BACKENDS = ["numba", "numpy"] if numba_available() else ["numpy"]
@@ -276,3 +276,29 @@ def test_numpy_path_without_torch_or_numba():
         "print('ok')\n")
     res = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr
+
+
+def test_box_pixels_decide_the_edges_as_the_float32_test():
+    """Box edges on pixel centres, give or take a float32 ulp (where float64 and float32 arithmetic disagree),
+    also off the window's sides: box_pixels picks exactly the pixels the rasterizers' float32 test picks."""
+    rng = np.random.default_rng(3)
+    n = 4000
+    chol = np.stack([rng.choice([1 / 3, 0.5, 1.1, 7 / 3, 40.0], n), rng.uniform(-2, 2, n),
+                     rng.choice([1 / 3, 0.25, 2.0], n)], 1).astype(np.float32)
+    radii = box_radii(chol).astype(np.float64)
+    centre = rng.integers(-5, 45, (n, 2)) + 0.5 + rng.choice([-1, 1], (n, 2)) * radii
+    means = (centre + rng.integers(-2, 3, (n, 2)) * 1e-6 * np.abs(centre)).astype(np.float32)
+    means[::5] = np.nextafter(means[::5], np.float32(np.inf))
+    means[2::5] = np.nextafter(means[2::5], np.float32(-np.inf))
+    columns, rows = (3, 37), (0, 29)
+    ok, (x0, x1, y0, y1) = box_pixels(means, chol, columns, rows)
+    r = box_radii(chol)
+    in_x = np.abs((np.arange(*columns, dtype=np.float32) + np.float32(0.5)) - means[:, :1]) <= r[:, :1]
+    in_y = np.abs((np.arange(*rows, dtype=np.float32) + np.float32(0.5)) - means[:, 1:]) <= r[:, 1:]
+    expect_ok = in_x.any(1) & in_y.any(1)
+    np.testing.assert_array_equal(ok, expect_ok)
+    assert 0.3 < ok.mean() < 1
+    np.testing.assert_array_equal(x0[ok], columns[0] + in_x[ok].argmax(1))
+    np.testing.assert_array_equal(x1[ok], columns[1] - 1 - in_x[ok, ::-1].argmax(1))
+    np.testing.assert_array_equal(y0[ok], rows[0] + in_y[ok].argmax(1))
+    np.testing.assert_array_equal(y1[ok], rows[1] - 1 - in_y[ok, ::-1].argmax(1))

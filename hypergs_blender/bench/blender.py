@@ -36,6 +36,9 @@ EXTENSION_ID = "hypergs"
 # The encoder the main job uses unless --encoder says otherwise: the bundled network ("floor": the
 # no-learning grid floor, for comparison).
 DEFAULT_ENCODER = "bundled"
+# Environment for a Blender without a GPU context on a machine that has Mesa's EGL: glvnd's libEGL then finds
+# no driver, as on a machine without libegl-mesa0 (the engine must take its numpy path, not abort).
+NO_EGL = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no_egl_vendor.json"}
 
 
 class BuildError(HyperGSError):

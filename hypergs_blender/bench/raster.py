@@ -15,12 +15,24 @@ def _timeit(fn, repeats: int, sync=None) -> float:
 
 
 def realistic_gaussians(frames: int, n: int, width: int, height: int, seed: int = 0):
-    """Rasterizer inputs (means, chol, colors) like a trained model's: means uniform over the frame,
-    sigma ~ 0.8 * sqrt(W H / N) px so the Gaussians tile the frame, anisotropy exp(+-a) with a ~ N(0, 0.35)
-    and uniform rotation, small additive colours. float32 numpy arrays."""
+    """Rasterizer inputs (means, chol, colors) of `realistic_params` at their own size: float32 numpy arrays,
+    and sigma."""
     import numpy as np
 
-    from ..gaussians import NUM_PARAMS, render_inputs
+    from ..gaussians import render_inputs
+
+    params, sigma = realistic_params(frames, n, width, height, seed)
+    means, chol, colors = render_inputs(params, width, height, width, height)
+    return [np.ascontiguousarray(x, np.float32) for x in (means, chol, colors)], sigma
+
+
+def realistic_params(frames: int, n: int, width: int, height: int, seed: int = 0):
+    """Parameters [frames, n, 8] (float32) on a width x height canvas like a trained model's: means uniform
+    over the frame, sigma ~ 0.8 * sqrt(W H / N) px so the Gaussians tile the frame, anisotropy exp(+-a) with
+    a ~ N(0, 0.35) and uniform rotation, small additive colours; and sigma."""
+    import numpy as np
+
+    from ..gaussians import NUM_PARAMS
 
     rng = np.random.default_rng(seed)
     sigma = 0.8 * math.sqrt(width * height / n)
@@ -31,8 +43,7 @@ def realistic_gaussians(frames: int, n: int, width: int, height: int, seed: int 
     params[..., 3] = sigma * np.exp(-a)
     params[..., 4] = rng.uniform(0, 2 * math.pi, (frames, n))
     params[..., 5:8] = rng.uniform(0, 0.25, (frames, n, 3))
-    means, chol, colors = render_inputs(params, width, height, width, height)
-    return [np.ascontiguousarray(x, np.float32) for x in (means, chol, colors)], sigma
+    return params, sigma
 
 
 def bench_raster(device: str = "cpu", batch: int = 32, sizes=(250, 1000, 3000), repeats: int = 5) -> dict:

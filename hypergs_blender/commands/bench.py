@@ -179,6 +179,19 @@ def _picture(parser):
     return run
 
 
+def _splat(parser):
+    parser.add_argument("--size", default="1920x1080", help="render size WxH")
+    parser.add_argument("--gaussians", type=int, default=100_000, help="Gaussians per frame")
+    parser.add_argument("--repeats", type=int, default=5, help="timed renders per path (after a warm-up one)")
+    parser.add_argument("-o", "--output", default=None, help="also write the JSON report here")
+
+    def run(args) -> dict:
+        from ..bench.splat import bench_splat
+        w, h = (int(v) for v in args.size.lower().split("x"))
+        return write_report(bench_splat(w, h, args.gaussians, args.repeats), args.output)
+    return run
+
+
 def _plots(parser):
     from ..bench.blender import ROOT
     parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), help="folder of the JSON reports")
@@ -204,6 +217,8 @@ BENCH_COMMANDS = {
     "vs-x265": ("matched-quality pairs, .hgs vs x265: bpp, PSNR, SSIM, encode/decode frames/s", _vs_x265),
     "scale": ("a long (default synthetic 60 s 720p) video end to end: frames/s, peak memory, 1080p render", _scale),
     "picture": ("each quality preset on a video, rendered at the scene's size: PSNR, s/frame, a picture", _picture),
+    "splat": ("Blender F12 s/frame, GPU splats vs numpy path (1920x1080, 100k Gaussians), viewport draw time",
+              _splat),
     "plots": ("plots (docs/*.png) and docs/bench/tables.md from the JSON reports in docs/bench", _plots),
 }
 

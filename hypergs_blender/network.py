@@ -22,7 +22,7 @@ from .errors import HyperGSError
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 BUNDLED_NAME = "hypergs"
 BACKENDS = ("auto", "torch", "onnx")
-TILE = 512  # working pixels per tile side, margins included
+TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
 BATCH_PIXELS = 1 << 21  # working pixels per forward pass (bounds memory)
 
 

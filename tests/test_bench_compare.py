@@ -258,3 +258,14 @@ def test_make_plots_writes_pngs_and_tables(tiny_video, tmp_path):
     assert (tmp_path / "docs" / "vs_fit.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     tables = (bench / "tables.md").read_text()
     assert "| frames | N | method |" in tables and "| video | ours |" in tables
+
+
+def test_bench_picture_renders_each_preset(tmp_path):
+    from hypergs_blender.bench.picture import bench_presets, save_picture
+    report = bench_presets(ROOT / "hypergs_blender" / "samples" / "sample.mp4", presets=("draft", "standard"),
+                           width=128, height=72, frames=2, encoder="floor")
+    draft, standard = report["presets"]["draft"], report["presets"]["standard"]
+    assert report["source_size"] == [256, 144] and standard["gaussians"] > draft["gaussians"]
+    assert standard["psnr"] > draft["psnr"] > 15  # more Gaussians look better
+    picture = save_picture(report, tmp_path / "picture.png")
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -12,16 +12,12 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import HyperGSError
+from .errors import Cancelled, HyperGSError
 from .gaussians import GaussianVideo, grid_anchors, merge_tiles, tile_bounds
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
-
-
-class Cancelled(HyperGSError):
-    """The user cancelled an encode; nothing was written."""
 
 
 class FloorEncoder:

@@ -64,10 +64,10 @@ def test_resume_continues_exactly(tmp_path, monkeypatch):
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     train.run(training_args(tmp_path / "straight", 6))
     train.run(training_args(tmp_path / "resumed", 6, minutes=0))  # interrupted after its first step
-    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)["step"] == 1
+    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)["step"] == 1
     train.run(training_args(tmp_path / "resumed", 6))
-    straight = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=False)
-    resumed = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)
+    straight = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=True)
+    resumed = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)
     assert resumed["step"] == straight["step"] == 6
     for k, v in straight["model"].items():
         torch.testing.assert_close(resumed["model"][k], v, rtol=0, atol=0, msg=k)

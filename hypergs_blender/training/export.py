@@ -6,7 +6,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from ..errors import HyperGSError
+from ..errors import HyperGSError, reason
+from ..io.files import AtomicOutput, write_bytes
 from ..network import BUNDLED_NAME, anchors_and_cell
 
 ONNX_OPSET = 18
@@ -16,10 +17,11 @@ def save_weights(model, regularizer_state: dict, directory, name: str = BUNDLED_
     from safetensors.torch import save_file
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(directory / f"{name}.safetensors"))
+    with AtomicOutput(directory / f"{name}.safetensors") as temp:
+        save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(temp))
     card = dict(config=asdict(model.cfg), regularizer={k: float(v) for k, v in regularizer_state.items()},
                 info=info or {})
-    (directory / f"{name}.json").write_text(json.dumps(card, indent=2) + "\n")
+    write_bytes(directory / f"{name}.json", (json.dumps(card, indent=2) + "\n").encode())
 
 
 def export_onnx(model, path) -> None:
@@ -34,7 +36,26 @@ def export_onnx(model, path) -> None:
                                 output_names=["params"], opset_version=ONNX_OPSET, dynamo=True,
                                 dynamic_shapes={"frames": {0: batch}, "anchors": {0: gaussians}, "cell": None},
                                 external_data=False)
-    program.save(str(path))
+    with AtomicOutput(path) as temp:
+        program.save(str(temp))
+
+
+def load_checkpoint(path) -> dict:
+    """A training checkpoint, loaded with weights_only=True: tensors, numbers, strings and containers
+    only, so a checkpoint from elsewhere cannot run code. Raises HyperGSError naming the file."""
+    import pickle
+
+    import torch
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise HyperGSError(f"{path}: holds Python objects besides tensors and plain data; refused, as loading "
+                           "it could run code") from None
+    except (RuntimeError, EOFError, ValueError) as e:
+        raise HyperGSError(f"{path}: not a readable checkpoint ({reason(e)})") from None
+    if not isinstance(state, dict):
+        raise HyperGSError(f"{path}: not a training checkpoint")
+    return state
 
 
 def export_checkpoint(run, out, name: str = BUNDLED_NAME) -> dict:
@@ -45,7 +66,7 @@ def export_checkpoint(run, out, name: str = BUNDLED_NAME) -> dict:
     checkpoint_path = Path(run) / "checkpoint.pt"
     if not checkpoint_path.is_file():
         raise HyperGSError(f"{checkpoint_path}: no checkpoint")
-    state = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
+    state = load_checkpoint(checkpoint_path)
     model = HyperGS(ModelConfig(**state["config"]))
     model.load_state_dict(state["model"])
     train_args = {k: v for k, v in state["args"].items() if k in ("data", "batch", "lr", "gaussians", "steps", "seed")}

@@ -26,6 +26,7 @@ from ..io.frames import read_frames
 from ..model import PRESETS, HyperGS, ModelConfig, anchor_inputs
 from ..render import render_torch
 from . import data
+from .export import load_checkpoint
 from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
 from .sources import make_batch
@@ -82,7 +83,7 @@ def run(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "checkpoint.pt"
-    resume = torch.load(checkpoint_path, map_location="cpu", weights_only=False) if checkpoint_path.exists() else None
+    resume = load_checkpoint(checkpoint_path) if checkpoint_path.exists() else None
     if resume:
         cfg = ModelConfig(**resume["config"])
     else:

@@ -6,19 +6,22 @@ import json
 import numpy as np
 
 from ..evaluate import evaluate_video, warm_up
+from . import options
 from .options import add_encoder_arguments, encoder_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="quality and speed of encode -> render on videos")
-    p.add_argument("videos", nargs="+")
-    p.add_argument("--gaussians", type=int, default=1000, help="Gaussians per frame (split over grid tiles)")
+    p.add_argument("videos", nargs="+", type=options.input_video)
+    p.add_argument("--gaussians", type=options.gaussian_count, default=1000,
+                   help="Gaussians per frame (split over grid tiles)")
     p.add_argument("--grid", type=int, default=1, help="G x G patch-grid encoding")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--size", type=int, default=256, help="short-side resize + centre crop to SIZE x SIZE")
+    size.add_argument("--size", type=options.image_side, default=256,
+                      help="short-side resize + centre crop to SIZE x SIZE")
     size.add_argument("--native", action="store_true",
                       help="centre crop at the video's own short side, no resize (zero-shot high resolution)")
-    p.add_argument("--frames", type=int, default=8, help="frames sampled uniformly from each video")
+    p.add_argument("--frames", type=options.frame_count, default=8, help="frames sampled uniformly from each video")
     p.add_argument("--json", action="store_true")
     add_encoder_arguments(p)
     p.set_defaults(func=run)

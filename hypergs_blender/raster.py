@@ -143,9 +143,13 @@ def _clipped_boxes(means: np.ndarray, chol: np.ndarray, width: int, height: int)
 
 def box_work(means, chol, width: int, height: int) -> np.ndarray:
     """The cost of rendering, known before rendering: per frame, the pixels its Gaussians' clipped
-    boxes cover. means [..., N, 2], chol [..., N, 3] -> float64 [frames] (flattened leading shape)."""
+    boxes cover. means [..., N, 2], chol [..., N, 3] -> float64 [frames] (flattened leading shape).
+    With numba, from the kernels' own boxes; else in numpy (the patch plan's boxes, one pixel of
+    margin wider)."""
     means, chol = np.asarray(means), np.asarray(chol)
     n = means.shape[-2]
+    if numba_available() and n:
+        return _NUMBA.box_work(_NUMBA.prepare(means.reshape(-1, n, 2), chol.reshape(-1, n, 3), width, height)[0])
     ok, x0, x1, y0, y1 = _clipped_boxes(means.reshape(-1, 2).astype(np.float64),
                                         chol.reshape(-1, 3).astype(np.float64), width, height)
     area = np.where(ok, (x1 - x0 + 1) * (y1 - y0 + 1), 0).astype(np.float64)
@@ -205,24 +209,29 @@ def rasterize_numpy(means, chol, colors, width: int, height: int, *, backend: st
     width, height = int(width), int(height)
     m, c, col, lead = _flatten(means, chol, colors)
     check_render_size(width, height, m.shape[0], col.shape[-1])
-    work = box_work(m, c, width, height)
-    if len(work):
-        frame = int(np.argmax(work))
-        limits.WORK.check(work[frame], f"a {width} x {height} render" + (f", frame {frame}" if len(work) > 1 else ""))
     if backend == "numba" or (backend == "auto" and numba_available()):
         if not numba_available():
             raise ImportError("rasterize_numpy(backend='numba'): numba is not installed")
-        forward, piece = _NUMBA.forward, PIECE_WORK_NUMBA
+        prepared = _NUMBA.prepare(m, c, width, height)  # the kernels' boxes: the work, and the render's start
+        work, piece = _NUMBA.box_work(prepared[0]), PIECE_WORK_NUMBA
+
+        def forward(part, whole):
+            return _NUMBA.forward(m[:, part], c[:, part], col[:, part], width, height, prepared if whole else None)
     else:
-        forward, piece = _numpy_forward, PIECE_WORK_NUMPY
+        work, piece = box_work(m, c, width, height), PIECE_WORK_NUMPY
+
+        def forward(part, whole):
+            return _numpy_forward(m[:, part], c[:, part], col[:, part], width, height)
+    if len(work):
+        frame = int(np.argmax(work))
+        limits.WORK.check(work[frame], f"a {width} x {height} render" + (f", frame {frame}" if len(work) > 1 else ""))
     n = m.shape[1]
     slices = 1 if keep_going is None else int(min(max(1, math.ceil(work.sum() / piece)), max(n, 1)))
     out = None
-    for s in range(slices):
+    for s in range(slices):  # the render is additive: a sum over slices of the Gaussians
         if keep_going is not None and not keep_going():
             raise Cancelled("rendering cancelled")
-        part = slice(s * n // slices, (s + 1) * n // slices)
-        image = forward(m[:, part], c[:, part], col[:, part], width, height)
+        image = forward(slice(s * n // slices, (s + 1) * n // slices), slices == 1)
         out = image if out is None else np.add(out, image, out=out)
     return out.reshape(lead + out.shape[1:])
 

@@ -316,7 +316,7 @@ def test_render_into_a_read_only_folder_is_one_line(tmp_path, video):
     else:
         folder.chmod(0o555)
     result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120)
-    assert_one_line_error(result.returncode, result.stderr.splitlines(), "ro", "cannot write")
+    assert_one_line_error(result.returncode, result.stderr.splitlines(), "the folder ro is not writable")
     assert list(folder.iterdir()) == []
 
 

@@ -32,7 +32,7 @@ def check_output(path, suffixes=(), inputs=()) -> Path:
     if path.is_dir():
         raise HyperGSError(f"{path}: is a folder, not a file")
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise HyperGSError(f"{path}: cannot write in the folder {folder} (permission denied)")
+        raise HyperGSError(f"{path}: the folder {folder} is not writable")
     for source in inputs:
         if same_file(path, source):
             raise HyperGSError(f"{path}: is the input {source}; choose another output")
@@ -49,7 +49,7 @@ def check_output_folder(path, inputs=()) -> Path:
     if not folder.is_dir():
         raise HyperGSError(f"{path}: the folder {folder} does not exist")
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise HyperGSError(f"{path}: cannot write in the folder {folder} (permission denied)")
+        raise HyperGSError(f"{path}: the folder {folder} is not writable")
     for source in inputs:
         if same_file(path, source):
             raise HyperGSError(f"{path}: is the input {source}; choose another output")

@@ -394,11 +394,25 @@ def _f32(a):
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def forward(means, chol, colors, width: int, height: int) -> np.ndarray:
-    """means [B, N, 2], chol [B, N, 3], colors [B, N, C] (numpy) -> images [B, H, W, C] float32."""
+def prepare(means, chol, width: int, height: int):
+    """(boxes [B, N, 4], constants) of the Gaussians at width x height, for `forward` and `box_work`."""
+    return _prepare(_f32(means), _f32(chol), int(width), int(height))
+
+
+def box_work(boxes) -> np.ndarray:
+    """raster.box_work from the kernels' own boxes (prepare): float64 [B], the pixels per frame of
+    the clipped 3-sigma boxes of the valid Gaussians."""
+    w = boxes[..., 1].astype(np.int64) - boxes[..., 0] + 1
+    h = boxes[..., 3].astype(np.int64) - boxes[..., 2] + 1
+    return np.where((w > 0) & (h > 0), w * h, 0).sum(axis=1).astype(np.float64)
+
+
+def forward(means, chol, colors, width: int, height: int, prepared=None) -> np.ndarray:
+    """means [B, N, 2], chol [B, N, 3], colors [B, N, C] (numpy) -> images [B, H, W, C] float32.
+    prepared: what prepare() returned for these Gaussians, when known."""
     means, chol, colors = _f32(means), _f32(chol), _f32(colors)
     width, height = int(width), int(height)
-    boxes, consts = _prepare(means, chol, width, height)
+    boxes, consts = prepared if prepared is not None else _prepare(means, chol, width, height)
     order, count, tallest = _order(boxes, width)
     out = np.empty((means.shape[0], height, width, colors.shape[-1]), np.float32)
     if out.size:

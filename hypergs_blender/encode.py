@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import HyperGSError
+from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
@@ -29,10 +29,6 @@ QUALITY = {  # cell size in source pixels and refine steps of each quality prese
     "standard": dict(cell=6.0, refine=0),
     "high": dict(cell=4.0, refine=30),
 }
-
-
-class Cancelled(HyperGSError):
-    """The user cancelled an encode; nothing was written."""
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import limits
+from .errors import HyperGSError
+
 PARAMS = ("x", "y", "scale_x", "scale_y", "rotation", "r", "g", "b")
 NUM_PARAMS = len(PARAMS)
 # A grid of Gaussians with sigma INITIAL_SIGMA x the spacing, each with colour COLOUR_GAIN x c, sums to c
@@ -35,6 +38,8 @@ def _lattice_gain(sigma: float, cutoff: float = 3.0) -> float:
 
 
 COLOUR_GAIN = _lattice_gain(INITIAL_SIGMA)
+MAX_FPS = 10000.0
+MAX_GRID = 1 << 10
 
 
 @dataclass
@@ -52,6 +57,34 @@ class GaussianVideo:
             raise ValueError(f"GaussianVideo params must be [T, N, {NUM_PARAMS}], got {self.params.shape}")
         self.grid = tuple(int(g) for g in self.grid)
 
+    @classmethod
+    def checked(cls, where, params, canvas_width, canvas_height, fps=24.0, grid=(1, 1), source=None) -> "GaussianVideo":
+        """A clip read from a file (`where` names it in errors), every part checked: parameters as
+        `param_problem` wants them, at least one frame and one Gaussian and within the limits, a canvas
+        within the image limits, a finite positive fps, a grid of two positive integers, a dict source.
+        Raises HyperGSError. Readers check the sizes before they allocate, this checks the values."""
+        params = np.asarray(params)
+        if params.ndim != 3 or params.shape[-1] != NUM_PARAMS:
+            raise HyperGSError(f"{where}: Gaussian parameters must be [frames, Gaussians, {NUM_PARAMS}], "
+                               f"got shape {params.shape}")
+        if params.shape[0] < 1 or params.shape[1] < 1:
+            raise HyperGSError(f"{where}: an empty clip ({params.shape[0]} frames of {params.shape[1]} Gaussians)")
+        limits.check_clip_size(params.shape[0], params.shape[1], where)
+        if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (canvas_width, canvas_height)):
+            raise HyperGSError(f"{where}: the canvas must be two integers, got {canvas_width!r} x {canvas_height!r}")
+        limits.check_image_size(int(canvas_width), int(canvas_height), f"{where}: canvas")
+        if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) or not 0 < fps <= MAX_FPS:
+            raise HyperGSError(f"{where}: fps must be a number in (0, {MAX_FPS:g}], got {fps!r}")
+        if (not isinstance(grid, (list, tuple)) or len(grid) != 2
+                or not all(isinstance(g, (int, np.integer)) and 1 <= g <= MAX_GRID for g in grid)):
+            raise HyperGSError(f"{where}: the grid must be two integers in 1..{MAX_GRID}, got {grid!r}")
+        if not isinstance(source if source is not None else {}, dict):
+            raise HyperGSError(f"{where}: the source description must be a JSON object")
+        problem = param_problem(params)
+        if problem:
+            raise HyperGSError(f"{where}: {problem}")
+        return cls(params, int(canvas_width), int(canvas_height), float(fps), tuple(grid), dict(source or {}))
+
     @property
     def num_frames(self) -> int:
         return self.params.shape[0]
@@ -64,6 +97,31 @@ class GaussianVideo:
         return GaussianVideo(self.params[start:stop], self.canvas_width, self.canvas_height, self.fps,
                              self.grid, dict(self.source))
 
+
+def param_problem(params) -> str | None:
+    """What makes Gaussian parameters [..., 8] unusable, or None: values that are not real
+    floating-point numbers, are NaN or infinite (also after conversion to float32: 1e300 is), or
+    scales <= 0.
+    The message names the first bad value (frame, Gaussian, parameter)."""
+    params = np.asarray(params)
+    if params.dtype.kind != "f":
+        return f"Gaussian parameters must be real floating-point numbers, not {params.dtype}"
+    if params.shape[-1:] != (NUM_PARAMS,):
+        return f"Gaussian parameters must have {NUM_PARAMS} values each, got shape {params.shape}"
+    with np.errstate(over="ignore"):
+        values = params.astype(np.float32, copy=False)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        what = "Gaussian parameters contain NaN or infinite values"
+    else:
+        bad = np.zeros(values.shape, bool)
+        bad[..., 2:4] = values[..., 2:4] <= 0
+        if not bad.any():
+            return None
+        what = "Gaussian scales must be > 0"
+    index = np.unravel_index(np.argmax(bad), bad.shape)
+    place = ", ".join(f"{name} {i}" for name, i in zip(("frame", "Gaussian")[-(len(index) - 1):], index[:-1]))
+    return f"{what} ({place + ': ' if place else ''}{PARAMS[index[-1]]} = {params[index]})"
 
 def covariance(scale: np.ndarray, rotation: np.ndarray, stretch=(1.0, 1.0)) -> np.ndarray:
     """[..., 2, 2] covariance T R diag(s^2) R^T T for scales [..., 2] and rotations [...]."""

@@ -31,6 +31,12 @@ Gaussians, and memory bounded by the chunk size.
 Invalid Gaussians (non-finite values, l11 = 0 or l22 = 0, |mean| or 3-sigma radius >= MAX_EXTENT px)
 contribute nothing and get zero gradients in every fast path (the reference would spread NaN over
 their box).
+
+Limits (limits.py), checked before anything is allocated: the output size (SIDE, PIXELS, BYTES) in
+both entry points, and in `rasterize_numpy` the work of each frame (WORK: `box_work`, the pixels its
+Gaussians' clipped boxes cover). `rasterize_numpy(..., keep_going=f)` renders a heavy batch as a sum
+over slices of its Gaussians (the render is additive), calling f() before each slice (about 0.1 s of
+work), and raises errors.Cancelled when it returns False: a renderer's Esc, inside a long frame.
 """
 from __future__ import annotations
 
@@ -38,6 +44,9 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from . import limits
+from .errors import Cancelled
 
 if TYPE_CHECKING:
     import torch
@@ -167,16 +176,46 @@ LADDER_COARSE = np.array(sorted({int(round(v)) for k in range(40) for v in (2 **
 LADDER_FINE = np.array(sorted({int(math.ceil(2 ** (k / 4) - 1e-9)) for k in range(160)}), np.int64)
 
 
-def _patch_plan(means: np.ndarray, chol: np.ndarray, width: int, height: int, budget: int,
-                ladder: np.ndarray = LADDER_COARSE):
-    """For flattened Gaussians means [M, 2], chol [M, 3] (float64): patch origins (x0, y0) [M] int64 and a
-    list of chunks (indices, kh, kw) such that chunk size * kh * kw <= budget (or one Gaussian).
-    Invalid (non-finite, l11 = 0 or l22 = 0) and off-screen Gaussians are in no chunk."""
+def _clipped_boxes(means: np.ndarray, chol: np.ndarray, width: int, height: int):
+    """For flattened Gaussians means [M, 2], chol [M, 3] (float64): which are drawn (valid and on
+    screen), and their pixel boxes x0, x1, y0, y1 (int64 [M]: the 3-sigma box and one pixel of margin
+    either side, clipped to the image; 0 for the others)."""
     ok, (fx0, fx1, fy0, fy1) = touching(means, chol, width, height)  # the exact test happens on the patch
     x0 = np.clip(np.where(ok, fx0, 0), 0, width - 1).astype(np.int64)
     x1 = np.clip(np.where(ok, fx1, 0), 0, width - 1).astype(np.int64)
     y0 = np.clip(np.where(ok, fy0, 0), 0, height - 1).astype(np.int64)
     y1 = np.clip(np.where(ok, fy1, 0), 0, height - 1).astype(np.int64)
+    return ok, x0, x1, y0, y1
+
+
+def box_work(means, chol, width: int, height: int) -> np.ndarray:
+    """The cost of rendering, known before rendering: per frame, the pixels its Gaussians' clipped
+    boxes cover. means [..., N, 2], chol [..., N, 3] -> float64 [frames] (flattened leading shape).
+    With numba, from the kernels' own boxes; else in numpy (the patch plan's boxes, one pixel of
+    margin wider)."""
+    means, chol = np.asarray(means), np.asarray(chol)
+    n = means.shape[-2]
+    if numba_available() and n:
+        return _NUMBA.box_work(_NUMBA.prepare(means.reshape(-1, n, 2), chol.reshape(-1, n, 3), width, height)[0])
+    ok, x0, x1, y0, y1 = _clipped_boxes(means.reshape(-1, 2).astype(np.float64),
+                                        chol.reshape(-1, 3).astype(np.float64), width, height)
+    area = np.where(ok, (x1 - x0 + 1) * (y1 - y0 + 1), 0).astype(np.float64)
+    return area.reshape(-1, n).sum(axis=1) if n else np.zeros(math.prod(means.shape[:-2]))
+
+
+def check_render_size(width: int, height: int, frames: int, channels: int = 3) -> None:
+    """Refuses (LimitError) a render whose frames are past the image limits or whose output would be
+    past the memory limit."""
+    limits.check_image_size(width, height, "render")
+    limits.BYTES.check(frames * width * height * channels * 4, f"render of {frames:,} frames at {width} x {height}")
+
+
+def _patch_plan(means: np.ndarray, chol: np.ndarray, width: int, height: int, budget: int,
+                ladder: np.ndarray = LADDER_COARSE):
+    """For flattened Gaussians means [M, 2], chol [M, 3] (float64): patch origins (x0, y0) [M] int64 and a
+    list of chunks (indices, kh, kw) such that chunk size * kh * kw <= budget (or one Gaussian).
+    Invalid (non-finite, l11 = 0 or l22 = 0) and off-screen Gaussians are in no chunk."""
+    ok, x0, x1, y0, y1 = _clipped_boxes(means, chol, width, height)
     idx = np.nonzero(ok)[0]
     kw = np.minimum(ladder[np.searchsorted(ladder, x1[idx] - x0[idx] + 1)], width)
     kh = np.minimum(ladder[np.searchsorted(ladder, y1[idx] - y0[idx] + 1)], height)
@@ -203,23 +242,50 @@ def _flatten(means, chol, colors):
 # ----------------------------------------------------------------------------------------------------
 # numpy-only entry point
 
-def rasterize_numpy(means, chol, colors, width: int, height: int, *, backend: str = "auto") -> np.ndarray:
+def rasterize_numpy(means, chol, colors, width: int, height: int, *, backend: str = "auto",
+                    keep_going=None) -> np.ndarray:
     """Forward only, numpy in and out: means [..., N, 2], chol [..., N, 3], colors [..., N, C] ->
     float32 images [..., H, W, C]. backend: "auto" (numba when it imports, else numpy), "numba" or
-    "numpy" (the pure-numpy patch renderer, also what runs where numba is missing)."""
+    "numpy" (the pure-numpy patch renderer, also what runs where numba is missing).
+    keep_going: None, or a function () -> bool called between pieces of the work; False cancels
+    (raises errors.Cancelled). Raises LimitError for a render past the limits (see the module doc)."""
     if backend not in ("auto", "numba", "numpy"):
         raise ValueError(f"rasterize_numpy: unknown backend {backend!r}")
     means, chol, colors = (np.asarray(a) for a in (means, chol, colors))
     _check_shapes(means, chol, colors)
     width, height = int(width), int(height)
     m, c, col, lead = _flatten(means, chol, colors)
+    check_render_size(width, height, m.shape[0], col.shape[-1])
     if backend == "numba" or (backend == "auto" and numba_available()):
         if not numba_available():
             raise ImportError("rasterize_numpy(backend='numba'): numba is not installed")
-        out = _NUMBA.forward(m, c, col, width, height)
+        prepared = _NUMBA.prepare(m, c, width, height)  # the kernels' boxes: the work, and the render's start
+        work, piece = _NUMBA.box_work(prepared[0]), PIECE_WORK_NUMBA
+
+        def forward(part, whole):
+            return _NUMBA.forward(m[:, part], c[:, part], col[:, part], width, height, prepared if whole else None)
     else:
-        out = _numpy_forward(m, c, col, width, height)
+        work, piece = box_work(m, c, width, height), PIECE_WORK_NUMPY
+
+        def forward(part, whole):
+            return _numpy_forward(m[:, part], c[:, part], col[:, part], width, height)
+    if len(work):
+        frame = int(np.argmax(work))
+        limits.WORK.check(work[frame], f"a {width} x {height} render" + (f", frame {frame}" if len(work) > 1 else ""))
+    n = m.shape[1]
+    slices = 1 if keep_going is None else int(min(max(1, math.ceil(work.sum() / piece)), max(n, 1)))
+    out = None
+    for s in range(slices):  # the render is additive: a sum over slices of the Gaussians
+        if keep_going is not None and not keep_going():
+            raise Cancelled("rendering cancelled")
+        image = forward(slice(s * n // slices, (s + 1) * n // slices), slices == 1)
+        out = image if out is None else np.add(out, image, out=out)
     return out.reshape(lead + out.shape[1:])
+
+
+# With keep_going, a render runs in slices of about this many Gaussian-pixels (~0.1 s on 2 cores).
+PIECE_WORK_NUMBA = 1 << 25
+PIECE_WORK_NUMPY = 1 << 22
 
 
 _NUMPY_BUDGET = 1 << 18  # pixels per chunk: temporaries of ~1 MB stay in cache
@@ -282,6 +348,7 @@ def rasterize(means: "torch.Tensor", chol: "torch.Tensor", colors: "torch.Tensor
     if backend not in ("auto", "numba", "torch"):
         raise ValueError(f"rasterize: unknown backend {backend!r}")
     _check_shapes(means, chol, colors)
+    check_render_size(int(width), int(height), math.prod(means.shape[:-2]), colors.shape[-1])
     dtype = torch.promote_types(torch.promote_types(means.dtype, chol.dtype), colors.dtype)
     if not dtype.is_floating_point:
         dtype = torch.float32

@@ -228,7 +228,10 @@ def test_bench_scale_report(tmp_path):
 
 # ---- command line and plots ------------------------------------------------------------------------------
 
-def test_bench_commands_are_registered():
+def test_bench_commands_are_registered(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name in ("a.mp4", "b.mp4"):  # inputs must exist (commands/options.py)
+        (tmp_path / name).touch()
     parser = build_parser()
     args = parser.parse_args(["bench", "vs-fit", "a.mp4", "b.mp4", "--frames", "4", "--sizes", "256", "native",
                               "--gaussians", "250", "--fit-iters", "100", "300", "--refine-steps", "1", "10",

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from hypergs_blender.io.codec import (ANCHOR, INTRA, MODES, PREVIOUS, CodecError, Quantizer, decode_group,
                                    encode_group, order_stability, to_domain)
-from hypergs_blender.errors import HyperGSError
+from hypergs_blender.errors import HyperGSError, LimitError
 from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import HgsError, HgsReader, HgsWriter, load_hgs, save_hgs
 
@@ -187,7 +187,7 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
     path = tmp_path / "clip.hgs"
     size = save_hgs(video, path, bits=bits, group_size=4)
     assert size == path.stat().st_size
-    assert not (tmp_path / "clip.hgs.part").exists()
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left
     out = load_hgs(path)
     assert out.params.shape == video.params.shape and out.params.dtype == np.float32
     assert (out.canvas_width, out.canvas_height, out.fps, out.grid) == (64, 48, 30.0, (2, 1))
@@ -268,12 +268,14 @@ def test_failed_write_leaves_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_hgs_refuses_a_clip_too_large_to_load_whole(tmp_path):
+def test_hgs_refuses_a_clip_too_large_to_load_whole(tmp_path, monkeypatch):
     video = GaussianVideo(moving_params(np.random.default_rng(1), 3, 100), 32, 32)
     save_hgs(video, tmp_path / "c.hgs")
+    monkeypatch.setenv("HYPERGS_LIMIT_BYTES", "9000")
     with HgsReader(tmp_path / "c.hgs") as reader:
-        with pytest.raises(HgsError, match="frame by frame"):
-            reader.read_all(max_bytes=1000)
+        assert reader.read_frame(2).shape == (100, 8)  # frame by frame is fine
+        with pytest.raises(LimitError, match=r"c.hgs \(3 frames x 100 Gaussians\): 9,600 bytes of data.* HYPERGS_LIMIT_BYTES"):
+            reader.read_all()
 
 
 def golden_clip():

@@ -112,6 +112,6 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     out = tmp_path / "clip.hgs"
     with pytest.raises(SystemExit) as exit_info:
         main(["encode", str(bad), "-o", str(out), "--encoder", "floor"])
-    assert exit_info.value.code == 2
+    assert exit_info.value.code == 1
     assert "notes.mp4" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob("clip.hgs*"))

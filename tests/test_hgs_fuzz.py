@@ -1,7 +1,7 @@
 """Fuzzing the .hgs reader: truncated files, flipped bits, overwritten bytes, huge declared sizes (with the
 checksums re-signed so the values get past them), wrong versions, garbage. Every input must either
-read as a valid clip or raise HgsError, within bounded memory and time: never another exception,
-a crash or a hang.
+read as a valid clip or raise HgsError (LimitError past the limits), within bounded memory and time
+(fuzzing.py): never another exception, a crash or a hang.
 
 In the test suite: hypothesis, a bounded number of examples. Stand-alone, a longer run that prints
 how many inputs it tried:
@@ -16,7 +16,6 @@ import struct
 import sys
 import tempfile
 import time
-import tracemalloc
 import zlib
 from pathlib import Path
 
@@ -28,12 +27,10 @@ from hypothesis import strategies as st
 if __name__ == "__main__":  # run as a script from anywhere: the package is in the checkout
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from fuzzing import Stats, fuzz_limits, outcome  # noqa: E402
+from hypergs_blender.errors import HyperGSError, LimitError
 from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
-
-MAX_PEAK_BYTES = 400 << 20  # a clip's largest legal frame (2^20 Gaussians) decodes in less
-MAX_SECONDS = 10.0
-READ_LIMIT = 64 << 20  # read_all refuses more than this in the fuzz
 
 # (name, struct format) of the fixed header fields, in order
 HEADER_FIELDS = [("magic", "8s"), ("version", "H"), ("flags", "H"), ("canvas_w", "I"), ("canvas_h", "I"),
@@ -158,29 +155,24 @@ def mutate(kind: str, rnd: random.Random, data: bytes = BASE) -> bytes:
 KINDS = ("truncate", "flip", "overwrite", "header", "chunk", "index", "splice", "garbage")
 
 
-def read_outcome(data: bytes, path: Path) -> str:
-    """'ok' (a valid clip) or 'error' (HgsError); anything else propagates and fails the test.
-    Asserts the memory and time bounds."""
+def read_outcome(data: bytes, path: Path, stats: Stats | None = None, kind: str = "") -> str:
+    """'ok' (a valid clip), 'error' (HgsError) or 'limit' (past the fuzzing limits); anything else
+    propagates and fails the test. Asserts the memory and time bounds."""
     path.write_bytes(data)
-    tracemalloc.start()
-    started = time.perf_counter()
-    try:
-        with HgsReader(path) as reader:
-            video = reader.read_all(max_bytes=READ_LIMIT)
-            reader.verify()
+
+    def read():
+        try:
+            with HgsReader(path) as reader:
+                video = reader.read_all()
+                reader.verify()
+        except HyperGSError as e:
+            assert isinstance(e, (HgsError, LimitError)), f"{type(e).__name__}: {e}"
+            raise
         assert video.params.shape[1:] == (video.num_gaussians, 8)
         assert np.all(np.isfinite(video.params)) and np.all(video.params[..., 2:4] > 0)
-        outcome = "ok"
-    except HgsError as e:
-        assert str(e), "an error without a message"
-        outcome = "error"
-    finally:
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-    elapsed = time.perf_counter() - started
-    assert peak < MAX_PEAK_BYTES, f"{peak / 2**20:.0f} MiB to read a {len(data)}-byte file"
-    assert elapsed < MAX_SECONDS, f"{elapsed:.1f} s to read a {len(data)}-byte file"
-    return outcome
+
+    with fuzz_limits():
+        return outcome(read, f"a {len(data)}-byte file", stats, kind)
 
 
 # ---- the test suite -------------------------------------------------------------------------------
@@ -224,7 +216,7 @@ def test_huge_or_invalid_declared_sizes_are_refused_quickly(tmp_path, field, val
     data = bytearray(BASE)
     set_header_field(data, field, value)
     resign_header(data)
-    assert read_outcome(bytes(data), tmp_path / "f.hgs") == "error"
+    assert read_outcome(bytes(data), tmp_path / "f.hgs") in ("error", "limit")
 
 
 def test_each_chunk_checksum_is_checked(tmp_path):
@@ -252,14 +244,13 @@ def test_unfinished_file_is_reported(tmp_path):
 
 # ---- stand-alone runs -------------------------------------------------------------------------------
 
-def run_random(seconds: float, seed: int) -> dict:
+def run_random(seconds: float, seed: int, max_inputs: int | None = None) -> dict:
     rnd = random.Random(seed)
-    counts = {"ok": 0, "error": 0}
-    by_kind = {k: 0 for k in KINDS + ("bytes",)}
+    stats = Stats()
     started = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "f.hgs"
-        while time.time() - started < seconds:
+        while time.time() - started < seconds and (max_inputs is None or sum(stats.outcomes.values()) < max_inputs):
             if rnd.random() < 0.05:
                 kind, data = "bytes", rnd.randbytes(rnd.randint(0, 300))
             else:
@@ -267,15 +258,14 @@ def run_random(seconds: float, seed: int) -> dict:
                 data = mutate(kind, rnd)
                 if rnd.random() < 0.2:  # stack a second mutation
                     data = mutate(rnd.choice(KINDS), rnd, data) if len(data) == len(BASE) else data
-            by_kind[kind] += 1
             try:
-                counts[read_outcome(data, path)] += 1
+                read_outcome(data, path, stats, kind)
             except Exception:
-                crash = Path(f"hgs-crash-{sum(counts.values())}.hgs")
+                crash = Path(f"hgs-crash-{sum(stats.outcomes.values())}.hgs")
                 crash.write_bytes(data)
                 print(f"FAILURE on input saved to {crash}", file=sys.stderr)
                 raise
-    return {"inputs": sum(counts.values()), **counts, "by_kind": by_kind, "seconds": seconds, "seed": seed}
+    return {**stats.report(), "seconds": round(time.time() - started, 1), "seed": seed}
 
 
 def run_atheris(argv) -> None:
@@ -309,10 +299,11 @@ if __name__ == "__main__":
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60)
+    parser.add_argument("--inputs", type=int, default=None, help="stop after this many inputs")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--atheris", action="store_true", help="coverage-guided; pass libFuzzer flags after --")
     args, rest = parser.parse_known_args()
     if args.atheris:
         run_atheris([sys.argv[0]] + [a for a in rest if a != "--"])
     else:
-        print(json.dumps(run_random(args.seconds, args.seed)))
+        print(json.dumps(run_random(args.seconds, args.seed, args.inputs)))

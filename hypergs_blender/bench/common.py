@@ -191,6 +191,7 @@ def encode_reference(frames: np.ndarray, fps: float, codec: str, crf: int, prese
 def write_report(report: dict, output) -> dict:
     """Save the report as JSON at `output` (when given); returns it."""
     if output:
+        from ..io.files import write_bytes
         Path(output).parent.mkdir(parents=True, exist_ok=True)
-        Path(output).write_text(json.dumps(report, indent=2) + "\n")
+        write_bytes(output, (json.dumps(report, indent=2) + "\n").encode())
     return report

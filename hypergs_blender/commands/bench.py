@@ -10,17 +10,26 @@ import json
 import sys
 
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
+from .. import limits
 from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES, FIT_INITS
 from ..network import BACKENDS
+from . import options
+
+
+CRF = options.Integer(0, high=63)  # x264 / x265 constant rate factor
+GROUP_SIZE = options.Integer(1, high=64)  # .hgs frames per group (hgs.MAX_GROUP_SIZE)
+POSITION_BITS = options.Integer(0, high=16)  # 0: none
 
 
 def _bench_options(parser, default: str = "network") -> None:
     parser.add_argument("--encoder", default=default, choices=["network", "floor"],
                         help="the bundled network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--weights", default=None, help="folder with <name>.json/.safetensors/.onnx")
-    parser.add_argument("--device", default="auto", help="auto (cuda when available), cpu, cuda")
-    parser.add_argument("-o", "--output", default=None, help="also write the JSON report here")
+    parser.add_argument("--weights", default=None, type=options.input_folder,
+                        help="folder with <name>.json/.safetensors/.onnx")
+    parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
+    parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
+                        help="also write the JSON report here")
 
 
 def _progress(message: str) -> None:
@@ -37,9 +46,9 @@ def _raster(parser):
 
 
 def _encode(parser):
-    parser.add_argument("--frames", type=int, default=8)
-    parser.add_argument("--size", type=int, default=256)
-    parser.add_argument("--weights", default=None)
+    parser.add_argument("--frames", type=options.frame_count, default=8)
+    parser.add_argument("--size", type=options.image_side, default=256)
+    parser.add_argument("--weights", default=None, type=options.input_folder)
 
     def run(args):
         from ..bench.encode import bench_encode
@@ -48,16 +57,19 @@ def _encode(parser):
 
 
 def _codec(parser):
-    parser.add_argument("videos", nargs="+")
-    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("videos", nargs="+", type=options.input_video)
+    parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
-    parser.add_argument("--crf", type=int, nargs="+", default=list(DEFAULT_CRFS))
-    parser.add_argument("--size", type=int, default=256, help="square frame size (short-side resize + centre crop)")
-    parser.add_argument("--frames", type=int, default=None, help="frames sampled uniformly (default: all)")
-    parser.add_argument("--codec", default="libx265", help="FFmpeg reference encoder (libx264 when libx265 is missing)")
-    parser.add_argument("--preset", default="medium")
-    parser.add_argument("--group-size", type=int, default=16)
-    parser.add_argument("--position-bits", type=int, default=10,
+    parser.add_argument("--crf", type=CRF, nargs="+", default=list(DEFAULT_CRFS))
+    parser.add_argument("--size", type=options.image_side, default=256,
+                        help="square frame size (short-side resize + centre crop)")
+    parser.add_argument("--frames", type=options.frame_count, default=None,
+                        help="frames sampled uniformly (default: all)")
+    parser.add_argument("--codec", default="libx265", type=options.text,
+                        help="FFmpeg reference encoder (libx264 when libx265 is missing)")
+    parser.add_argument("--preset", default="medium", type=options.text)
+    parser.add_argument("--group-size", type=GROUP_SIZE, default=16)
+    parser.add_argument("--position-bits", type=POSITION_BITS, default=10,
                         help="also rows with the means at this many bits (0: none)")
     _bench_options(parser)
 
@@ -73,20 +85,20 @@ def _codec(parser):
 
 
 def _vs_fit(parser):
-    parser.add_argument("videos", nargs="+")
-    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
-    parser.add_argument("--refine-steps", type=int, nargs="*", default=list(DEFAULT_REFINE_STEPS),
+    parser.add_argument("videos", nargs="+", type=options.input_video)
+    parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("--refine-steps", type=options.non_negative_int, nargs="*", default=list(DEFAULT_REFINE_STEPS),
                         help="K values for feedforward + refine (1: least-squares colours only)")
-    parser.add_argument("--fit-iters", type=int, nargs="+", default=list(DEFAULT_FIT_ITERS),
+    parser.add_argument("--fit-iters", type=options.positive_int, nargs="+", default=list(DEFAULT_FIT_ITERS),
                         help="fitting rungs (iterations), each its own run")
     parser.add_argument("--fit-inits", nargs="+", default=list(FIT_INITS), choices=FIT_INITS,
                         help="fitting baselines: from random initial values, from the Gaussian grid")
-    parser.add_argument("--sizes", nargs="+", default=list(DEFAULT_SIZES),
+    parser.add_argument("--sizes", nargs="+", default=list(DEFAULT_SIZES), type=options.frame_size,
                         help="frames: square sizes (short-side resize + crop), 'cropN' (N x N centre crop at the "
                              "video's resolution), 'native' (whole frames)")
-    parser.add_argument("--frames", type=int, default=4, help="consecutive frames per video")
-    parser.add_argument("--start", type=int, default=0, help="first frame")
-    parser.add_argument("--fit-budget", type=float, default=DEFAULT_FIT_BUDGET,
+    parser.add_argument("--frames", type=options.frame_count, default=4, help="consecutive frames per video")
+    parser.add_argument("--start", type=options.frame_index, default=0, help="first frame")
+    parser.add_argument("--fit-budget", type=options.non_negative_float, default=DEFAULT_FIT_BUDGET,
                         help="seconds of fitting per (video, size, N, init): rungs predicted to exceed it are skipped "
                              f"(default {DEFAULT_FIT_BUDGET:g}; 0: no limit)")
     parser.add_argument("--fit-all", action="store_true",
@@ -103,20 +115,21 @@ def _vs_fit(parser):
 
 
 def _vs_x265(parser):
-    parser.add_argument("videos", nargs="+")
-    parser.add_argument("--gaussians", type=int, nargs="+", default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("videos", nargs="+", type=options.input_video)
+    parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
-    parser.add_argument("--crf", type=int, nargs="+", default=list(DEFAULT_CRFS))
-    parser.add_argument("--refine-steps", type=int, nargs="+", default=[0],
+    parser.add_argument("--crf", type=CRF, nargs="+", default=list(DEFAULT_CRFS))
+    parser.add_argument("--refine-steps", type=options.non_negative_int, nargs="+", default=[0],
                         help="rows of ours at these refine K (0: the feedforward prediction)")
-    parser.add_argument("--sizes", "--size", dest="size", default="256",
+    parser.add_argument("--sizes", "--size", dest="size", default="256", type=options.frame_size,
                         help="frames: a square size (short-side resize + crop), 'cropN' or 'native'")
-    parser.add_argument("--frames", type=int, default=24, help="consecutive frames per video (0: all)")
-    parser.add_argument("--start", type=int, default=0)
-    parser.add_argument("--codec", default="libx265")
-    parser.add_argument("--preset", default="medium")
-    parser.add_argument("--group-size", type=int, default=16)
-    parser.add_argument("--position-bits", type=int, default=10,
+    parser.add_argument("--frames", type=options.Integer(0, limit=limits.FRAMES), default=24,
+                        help="consecutive frames per video (0: all)")
+    parser.add_argument("--start", type=options.frame_index, default=0)
+    parser.add_argument("--codec", default="libx265", type=options.text)
+    parser.add_argument("--preset", default="medium", type=options.text)
+    parser.add_argument("--group-size", type=GROUP_SIZE, default=16)
+    parser.add_argument("--position-bits", type=POSITION_BITS, default=10,
                         help="bits of the means where --bits is lower (0: every parameter at --bits)")
     _bench_options(parser)
 
@@ -130,25 +143,29 @@ def _vs_x265(parser):
 
 
 def _scale(parser):
-    parser.add_argument("video", nargs="?", default=None, help="a video (default: a synthetic pan, made in a temp dir)")
-    parser.add_argument("--seconds", type=float, default=60.0, help="length of the synthetic video")
-    parser.add_argument("--resolution", default="1280x720", help="W x H of the synthetic video")
-    parser.add_argument("--fps", type=int, default=24)
-    parser.add_argument("--gaussians", type=int, default=None, help="Gaussians per frame (default: --cell)")
-    parser.add_argument("--cell", type=float, default=6.0, help="source pixels per Gaussian cell side")
-    parser.add_argument("--chunk-frames", type=int, default=16)
-    parser.add_argument("--refine", type=int, default=0)
+    parser.add_argument("video", nargs="?", default=None, type=options.input_video,
+                        help="a video (default: a synthetic pan, made in a temp dir)")
+    parser.add_argument("--seconds", type=options.positive_float, default=60.0, help="length of the synthetic video")
+    parser.add_argument("--resolution", default="1280x720", type=options.resolution,
+                        help="W x H of the synthetic video")
+    parser.add_argument("--fps", type=options.Integer(1, high=1000), default=24)
+    parser.add_argument("--gaussians", type=options.gaussian_count, default=None,
+                        help="Gaussians per frame (default: --cell)")
+    parser.add_argument("--cell", type=options.positive_float, default=6.0, help="source pixels per Gaussian cell side")
+    parser.add_argument("--chunk-frames", type=options.positive_int, default=16)
+    parser.add_argument("--refine", type=options.non_negative_int, default=0)
     parser.add_argument("--bits", type=int, default=8, choices=[4, 6, 8])
-    parser.add_argument("--render", default="1920x1080", help="render size")
-    parser.add_argument("--render-frames", type=int, default=48, help="frames rendered (0: all)")
-    parser.add_argument("--keep", default=None, help="folder to keep the video and the .hgs in")
+    parser.add_argument("--render", default="1920x1080", type=options.resolution, help="render size")
+    parser.add_argument("--render-frames", type=options.Integer(0, limit=limits.FRAMES), default=48,
+                        help="frames rendered (0: all)")
+    parser.add_argument("--keep", default=None, type=options.output_folder,
+                        help="folder to keep the video and the .hgs in")
     parser.add_argument("--also-encode-video", action="store_true",
                         help="also measure `hypergs encode`'s path (encode_video holds the clip, then save_clip)")
     _bench_options(parser)
 
     def run(args) -> dict:
-        w, h = (int(v) for v in args.resolution.lower().split("x"))
-        rw, rh = (int(v) for v in args.render.lower().split("x"))
+        (w, h), (rw, rh) = args.resolution, args.render
         from ..bench.scale import bench_scale
         return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.cell, args.chunk_frames,
                                   args.refine, args.bits, rw, rh, args.render_frames or None, 8, args.encoder,
@@ -158,17 +175,19 @@ def _scale(parser):
 
 
 def _picture(parser):
-    parser.add_argument("video")
-    parser.add_argument("--size", default="864x480", help="render size W x H (the Blender scene's)")
-    parser.add_argument("--frames", type=int, default=4, help="consecutive frames encoded")
-    parser.add_argument("--crop", type=int, default=None, help="encode a CROP x CROP centre crop")
-    parser.add_argument("--picture", default=None, help="write the picture here (.png)")
+    parser.add_argument("video", type=options.input_video)
+    parser.add_argument("--size", default=(864, 480), type=options.resolution,
+                        help="render size W x H (the Blender scene's)")
+    parser.add_argument("--frames", type=options.frame_count, default=4, help="consecutive frames encoded")
+    parser.add_argument("--crop", type=options.image_side, default=None, help="encode a CROP x CROP centre crop")
+    parser.add_argument("--picture", default=None, type=options.OutputFile((".png",)),
+                        help="write the picture here (.png)")
     _bench_options(parser)
 
     def run(args) -> dict:
         from ..bench.picture import bench_presets, save_picture
         from ..network import resolve_encoder
-        width, height = (int(v) for v in args.size.lower().split("x"))
+        width, height = args.size
         encoder = resolve_encoder(args.encoder, args.backend, args.weights, None if args.device == "auto" else args.device)
         report = bench_presets(args.video, width=width, height=height, frames=args.frames, encoder=encoder,
                                crop=args.crop)
@@ -180,22 +199,25 @@ def _picture(parser):
 
 
 def _splat(parser):
-    parser.add_argument("--size", default="1920x1080", help="render size WxH")
-    parser.add_argument("--gaussians", type=int, default=100_000, help="Gaussians per frame")
-    parser.add_argument("--repeats", type=int, default=5, help="timed renders per path (after a warm-up one)")
-    parser.add_argument("-o", "--output", default=None, help="also write the JSON report here")
+    parser.add_argument("--size", default=(1920, 1080), type=options.resolution, help="render size WxH")
+    parser.add_argument("--gaussians", type=options.gaussian_count, default=100_000, help="Gaussians per frame")
+    parser.add_argument("--repeats", type=options.positive_int, default=5,
+                        help="timed renders per path (after a warm-up one)")
+    parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
+                        help="also write the JSON report here")
 
     def run(args) -> dict:
         from ..bench.splat import bench_splat
-        w, h = (int(v) for v in args.size.lower().split("x"))
+        w, h = args.size
         return write_report(bench_splat(w, h, args.gaussians, args.repeats), args.output)
     return run
 
 
 def _plots(parser):
     from ..bench.blender import ROOT
-    parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), help="folder of the JSON reports")
-    parser.add_argument("--out", default=str(ROOT / "docs"), help="folder for the PNGs")
+    parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), type=options.input_folder,
+                        help="folder of the JSON reports")
+    parser.add_argument("--out", default=str(ROOT / "docs"), type=options.output_folder, help="folder for the PNGs")
 
     def run(args) -> dict:
         from ..bench.plots import make_plots

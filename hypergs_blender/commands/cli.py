@@ -1,28 +1,78 @@
 """`hypergs` command line. Each module in COMMAND_MODULES adds its own subcommands with
-`add_commands(subparsers)`; modules are imported only when the CLI starts."""
+`add_commands(subparsers)`; modules are imported only when the CLI starts.
+
+Whatever goes wrong ends in one line on stderr, `hypergs <command>: error: ...`, and a non-zero exit
+status, never a traceback: a bad argument (exit 2, options.py), bad input or an unwritable output
+(HyperGSError, exit 1), an unexpected OSError such as a full disk (exit 1), Ctrl-C (exit 130) and
+SIGTERM (exit 143). Temporary files of unfinished outputs are removed on every exit (io/files.py).
+"""
 from __future__ import annotations
 
-import argparse
 import importlib
+import signal
 import sys
+import threading
 
-from ..errors import HyperGSError
+from ..errors import HyperGSError, one_line
+from ..io import files
+from .options import Parser, check_paths, command_parser
 
 COMMAND_MODULES = ["encode", "evaluate", "fit", "train", "data", "clips", "bench", "build"]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hypergs", description="HyperGS: videos to editable 2D Gaussians in one forward pass.")
+class Terminated(BaseException):
+    """SIGTERM arrived (raised in the main thread, so that every `with` and `finally` cleans up)."""
+
+
+def build_parser() -> Parser:
+    parser = Parser(prog="hypergs", description="HyperGS: videos to editable 2D Gaussians in one forward pass.")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(f"{__package__}.{name}").add_commands(subparsers)
     return parser
 
 
+def _terminate(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> None:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    command = command_parser(parser, args)
+    check_paths(command, args)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
         args.func(args)
-    except HyperGSError as e:
-        print(f"hypergs: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    except BaseException as e:
+        failure = _failure(e)
+        if failure is None:
+            raise  # a bug: its traceback
+        status, message = failure
+        print(f"{command.prog}: error: {one_line(message)}", file=sys.stderr)
+        sys.exit(status)
+    finally:
+        files.discard_pending()
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _failure(error: BaseException) -> tuple[int, str] | None:
+    """(exit status, message) of an error that ends a command with one line; None for the others.
+    An interruption counts wherever it arrived: a library may wrap it (numba raises SystemError with
+    the KeyboardInterrupt as its cause)."""
+    cause = error
+    while cause is not None:
+        if isinstance(cause, KeyboardInterrupt):
+            return 130, "interrupted"
+        if isinstance(cause, Terminated):
+            return 143, "terminated"
+        cause = cause.__cause__ or cause.__context__
+    if isinstance(error, HyperGSError):
+        return 1, str(error)
+    if isinstance(error, MemoryError):
+        return 1, "out of memory (lower the sizes, or the limits: see hypergs_blender/limits.py)"
+    if isinstance(error, OSError):  # a full disk, a folder made read-only meanwhile, a closed pipe
+        return 1, (f"{error.filename}: " if error.filename else "") + (error.strerror or str(error))
+    return None

@@ -5,6 +5,11 @@ import json
 import time
 from pathlib import Path
 
+from ..io.clips import CLIP_SUFFIXES
+from ..io.usd import USD_SUFFIXES
+from . import options
+
+
 # ---- info, export-usd, import-usd ------------------------------------------------------------------
 
 def clip_info(path, verify: bool = False) -> dict:
@@ -62,10 +67,9 @@ def _info_command(args) -> None:
 
 
 def _export_usd_command(args) -> None:
-    from ..io.clips import load_clip
-    from ..io.usd import export_usd
+    from ..io.clips import load_clip, save_clip
     video = load_clip(args.clip)
-    export_usd(video, args.output, start_frame=args.start_frame)
+    save_clip(video, args.output, start_frame=args.start_frame)
     print(f"{args.output}: {video.num_frames} frames x {video.num_gaussians} Gaussians "
           f"(frames {args.start_frame}..{args.start_frame + video.num_frames - 1} at {video.fps:g} fps)")
 
@@ -81,20 +85,22 @@ def _import_usd_command(args) -> None:
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("info", help="describe a Gaussian video file (.hgs, .npz, .usd)")
-    p.add_argument("clip")
+    p.add_argument("clip", type=options.InputFile(CLIP_SUFFIXES))
     p.add_argument("--verify", action="store_true", help="also check every checksum and decode every group")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_info_command)
 
     p = subparsers.add_parser("export-usd", help="Gaussian video file -> USD (UsdGeomPoints, a time sample per frame)")
-    p.add_argument("clip")
-    p.add_argument("output", help="out.usd / .usda / .usdc")
-    p.add_argument("--start-frame", type=int, default=1, help="time code of the first frame (default 1)")
+    p.add_argument("clip", type=options.InputFile(CLIP_SUFFIXES))
+    p.add_argument("output", type=options.OutputFile(USD_SUFFIXES), help="out.usd / .usda / .usdc")
+    p.add_argument("--start-frame", type=options.Integer(-options.BIGGEST), default=1,
+                   help="time code of the first frame (default 1)")
     p.set_defaults(func=_export_usd_command)
 
     p = subparsers.add_parser("import-usd", help="USD written by export-usd -> Gaussian video file")
-    p.add_argument("usd")
-    p.add_argument("output", help="clip.hgs / .npz")
-    p.add_argument("--prim", default=None, help="path of the Points prim (default: the one with HyperGS metadata)")
+    p.add_argument("usd", type=options.InputFile(USD_SUFFIXES))
+    p.add_argument("output", type=options.OutputFile(CLIP_SUFFIXES), help="clip.hgs / .npz")
+    p.add_argument("--prim", default=None, type=options.text,
+                   help="path of the Points prim (default: the one with HyperGS metadata)")
     p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
     p.set_defaults(func=_import_usd_command)

@@ -8,6 +8,8 @@ from ..io.images import write_image
 from ..training.data import DEFAULT_SPEC, build_sources, contact_sheet
 from ..training.prepare import VAL_PHOTO_COUNT, prepare_photos, prepare_videos
 from ..training.sources import DEFAULT_ROOT, make_batch
+from ..io.images import IMAGE_EXTENSIONS
+from . import options
 
 
 def add_commands(subparsers) -> None:
@@ -16,31 +18,33 @@ def add_commands(subparsers) -> None:
         description="Prepare training data under ROOT. With no --photos/--videos: the default set "
                     "(wallpaper photos from Debian packages -> photos_cache.npz + photos_val_cache.npz). "
                     "Idempotent: skips caches that are up to date unless --force.")
-    p.add_argument("--root", default=DEFAULT_ROOT, help="data folder (default: %(default)s)")
+    p.add_argument("--root", default=DEFAULT_ROOT, type=options.run_folder, help="data folder (default: %(default)s)")
     p.add_argument("--photos", action="store_true", help="prepare the photo caches")
-    p.add_argument("--photo-folder", default=None,
+    p.add_argument("--photo-folder", default=None, type=options.input_folder,
                    help="build the photo caches from this folder of images instead of ROOT/photos "
                         "(no download)")
-    p.add_argument("--videos", nargs="+", default=[], metavar="FOLDER",
+    p.add_argument("--videos", nargs="+", default=[], metavar="FOLDER", type=options.input_folder,
                    help="pre-extract a clip cache from each folder of videos (use videos=FOLDER in the "
                         "training spec)")
-    p.add_argument("--val-photos", type=int, default=VAL_PHOTO_COUNT, help="held-out photos (default: %(default)s)")
-    p.add_argument("--video-size", type=int, default=256,
+    p.add_argument("--val-photos", type=options.non_negative_int, default=VAL_PHOTO_COUNT,
+                   help="held-out photos (default: %(default)s)")
+    p.add_argument("--video-size", type=options.image_side, default=256,
                    help="cached clip side in pixels, about 2x the canvas (default: %(default)s)")
-    p.add_argument("--video-frames", type=int, default=16, help="frames per cached clip (default: %(default)s)")
-    p.add_argument("--clips-per-video", type=int, default=8, help="(default: %(default)s)")
+    p.add_argument("--video-frames", type=options.frame_count, default=16,
+                   help="frames per cached clip (default: %(default)s)")
+    p.add_argument("--clips-per-video", type=options.positive_int, default=8, help="(default: %(default)s)")
     p.add_argument("--force", action="store_true", help="rebuild caches that exist")
     p.set_defaults(func=_cmd_prepare)
 
     q = subparsers.add_parser("preview-data", help="write a contact sheet of random training clips",
                               description="One row per clip of make_batch, one column per frame.")
-    q.add_argument("--spec", default=DEFAULT_SPEC, help="source spec (default: %(default)s)")
-    q.add_argument("--root", default=DEFAULT_ROOT, help="data folder (default: %(default)s)")
-    q.add_argument("--clips", type=int, default=8)
-    q.add_argument("--frames", type=int, default=4)
-    q.add_argument("--size", type=int, default=128)
-    q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--out", required=True, help="image file to write (.png)")
+    q.add_argument("--spec", default=DEFAULT_SPEC, type=options.text, help="source spec (default: %(default)s)")
+    q.add_argument("--root", default=DEFAULT_ROOT, type=options.text, help="data folder (default: %(default)s)")
+    q.add_argument("--clips", type=options.positive_int, default=8)
+    q.add_argument("--frames", type=options.frame_count, default=4)
+    q.add_argument("--size", type=options.image_side, default=128)
+    q.add_argument("--seed", type=options.non_negative_int, default=0)
+    q.add_argument("--out", required=True, type=options.OutputFile(IMAGE_EXTENSIONS), help="image file to write (.png)")
     q.set_defaults(func=_cmd_preview)
 
 

@@ -7,19 +7,23 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import limits
 from ..encode import QUALITY, EncodePlan
 from ..gaussians import GaussianVideo
+from ..io.clips import CLIP_SUFFIXES
+from . import options
 from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("encode", help="video -> Gaussian video file (.npz, .hgs, .usd)")
-    p.add_argument("video")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("video", type=options.input_video)
+    p.add_argument("-o", "--output", required=True, type=options.OutputFile(CLIP_SUFFIXES))
     add_density_arguments(p, default_cell=QUALITY["standard"]["cell"])
-    p.add_argument("--size", type=int, default=None, help="square canvas (short-side resize + crop); default native")
-    p.add_argument("--start", type=int, default=0)
-    p.add_argument("--stop", type=int, default=None)
+    p.add_argument("--size", type=options.image_side, default=None,
+                   help="square canvas (short-side resize + crop); default native")
+    p.add_argument("--start", type=options.frame_index, default=0)
+    p.add_argument("--stop", type=options.frame_count, default=None)
     p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
     p.add_argument("--position-bits", type=int, default=10, choices=range(4, 17), metavar="{4..16}",
                    help="bits of the means (.hgs; default 10: at 4-6 bits the means snap to a coarse lattice)")
@@ -27,10 +31,10 @@ def add_commands(subparsers) -> None:
     p.set_defaults(func=_encode_command)
 
     p = subparsers.add_parser("render", help="Gaussian video file -> image frames")
-    p.add_argument("clip")
-    p.add_argument("-o", "--output", required=True, help="folder for frame_0000.png ...")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
+    p.add_argument("clip", type=options.InputFile(CLIP_SUFFIXES))
+    p.add_argument("-o", "--output", required=True, type=options.output_folder, help="folder for frame_0000.png ...")
+    p.add_argument("--width", type=options.image_side, default=None)
+    p.add_argument("--height", type=options.image_side, default=None)
     p.add_argument("--format", default="png", choices=["png", "exr"])
     p.set_defaults(func=_render_command)
 
@@ -38,49 +42,56 @@ def add_commands(subparsers) -> None:
 def _encode_command(args) -> None:
     from tqdm import tqdm
     encoder = encoder_from_args(args)
-    bar = tqdm(unit="frame", dynamic_ncols=True)
-
-    def progress(done, total):
-        bar.total, bar.n = total, done
-        bar.refresh()
-        return True
-
     started = time.perf_counter()
     plan = EncodePlan(args.video, encoder, **density_from_args(args), size=args.size, start=args.start, stop=args.stop)
     if plan.layout.note:
         print(f"hypergs: note: {plan.layout.note}", file=sys.stderr)
-    chunks = (params for _, params in plan.chunks(progress, refine=args.refine))
-    if Path(args.output).suffix.lower() == ".hgs":
-        # Streamed: memory stays bounded by the chunk, and the writer only renames its .part file
-        # into place when every frame is in, so an interrupted encode leaves no file behind.
-        from ..io.codec import Quantizer
-        from ..io.hgs import HgsWriter
-        bits = (args.position_bits,) * 2 + (args.bits,) * 6
-        quantizer = Quantizer.default(plan.width, plan.height, bits)
-        with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
-                       plan.grid, plan.source) as writer:
-            for params in chunks:
-                writer.write(params)
-    else:
-        from ..io.clips import save_clip
-        video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps, plan.grid,
-                              plan.source)
-        save_clip(video, args.output)
-    bar.close()
+    streamed = Path(args.output).suffix.lower() == ".hgs"
+    if not streamed:  # the clip is held whole before it is written
+        limits.check_clip_size(len(plan.indices), plan.layout.count, args.output)
+    with tqdm(total=len(plan.indices), unit="frame", dynamic_ncols=True, disable=None) as bar:  # a bar on a terminal
+
+        def progress(done, total):
+            bar.update(done - bar.n)
+            return True
+
+        chunks = (params for _, params in plan.chunks(progress, refine=args.refine))
+        if streamed:
+            # Streamed: memory stays bounded by the chunk, and the writer only renames its temporary
+            # file into place when every frame is in, so an interrupted encode leaves no file behind.
+            from ..io.codec import Quantizer
+            from ..io.hgs import HgsWriter
+            bits = (args.position_bits,) * 2 + (args.bits,) * 6
+            quantizer = Quantizer.default(plan.width, plan.height, bits)
+            with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
+                           plan.grid, plan.source) as writer:
+                for params in chunks:
+                    writer.write(params)
+        else:
+            from ..io.clips import save_clip
+            video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps, plan.grid,
+                                  plan.source)
+            save_clip(video, args.output)
     print(f"{args.output}: {len(plan.indices)} frames x {plan.layout.count} Gaussians "
           f"({time.perf_counter() - started:.2f} s)")
 
 
 def _render_command(args) -> None:
+    from ..errors import HyperGSError
     from ..io.clips import load_clip
     from ..io.images import write_image
+    from ..raster import check_render_size
     from ..render import render_frames
     video = load_clip(args.clip)
     width = args.width or video.canvas_width
-    height = args.height or round(width * video.canvas_height / video.canvas_width)
+    height = args.height or max(1, round(width * video.canvas_height / video.canvas_width))
+    check_render_size(width, height, 1)
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(exist_ok=True)
     for t in range(video.num_frames):
-        frame = render_frames(video, width, height, [t])[0]
+        try:
+            frame = render_frames(video, width, height, [t])[0]
+        except HyperGSError as e:
+            raise type(e)(f"{args.clip}, frame {t}: {e}") from None
         write_image(out / f"frame_{t:04d}.{args.format}", frame)
     print(f"{video.num_frames} frames at {width}x{height} -> {out}")

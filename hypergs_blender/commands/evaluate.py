@@ -8,20 +8,24 @@ import numpy as np
 
 from ..evaluate import evaluate_video, warm_up
 from ..io.frames import probe
+from . import options
 from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="quality and speed of encode -> render on videos")
-    p.add_argument("videos", nargs="+")
+    p.add_argument("videos", nargs="+", type=options.input_video)
     add_density_arguments(p, default_cell=8.0)
     frames = p.add_mutually_exclusive_group()
-    frames.add_argument("--size", type=int, default=256, help="short-side resize + centre crop to SIZE x SIZE")
-    frames.add_argument("--crop", type=int, default=None, help="centre crop CROP x CROP at the video's own resolution")
+    frames.add_argument("--size", type=options.image_side, default=256,
+                        help="short-side resize + centre crop to SIZE x SIZE")
+    frames.add_argument("--crop", type=options.image_side, default=None,
+                        help="centre crop CROP x CROP at the video's own resolution")
     frames.add_argument("--native", action="store_true", help="centre crop at the video's own short side")
     frames.add_argument("--full", action="store_true", help="whole frames at the video's own resolution")
-    p.add_argument("--frames", type=int, default=8, help="frames sampled uniformly from each video")
-    p.add_argument("--tile", type=int, default=None, help="network tile size in working pixels (tests seams)")
+    p.add_argument("--frames", type=options.frame_count, default=8, help="frames sampled uniformly from each video")
+    p.add_argument("--tile", type=options.positive_int, default=None,
+                   help="network tile size in working pixels (tests seams)")
     p.add_argument("--json", action="store_true")
     add_encoder_arguments(p)
     p.set_defaults(func=run)

@@ -13,17 +13,18 @@ from ..io.frames import read_frames
 from ..metrics import psnr
 from ..refine import FIT_STEPS, fit, random_init
 from ..render import render_torch
+from . import options
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit Gaussians to each frame by optimisation (the baseline)")
-    p.add_argument("video")
-    p.add_argument("--gaussians", type=int, default=1000)
-    p.add_argument("--iters", type=int, default=1000)
-    p.add_argument("--size", type=int, default=256, help="short-side resize + centre crop")
-    p.add_argument("--frames", type=int, default=8, help="frames sampled uniformly")
+    p.add_argument("video", type=options.input_video)
+    p.add_argument("--gaussians", type=options.gaussian_count, default=1000)
+    p.add_argument("--iters", type=options.positive_int, default=1000)
+    p.add_argument("--size", type=options.image_side, default=256, help="short-side resize + centre crop")
+    p.add_argument("--frames", type=options.frame_count, default=8, help="frames sampled uniformly")
     p.add_argument("--init", default="random", choices=["random", "grid"])
-    p.add_argument("--mean-step", type=float, default=FIT_STEPS.mean_cells,
+    p.add_argument("--mean-step", type=options.positive_float, default=FIT_STEPS.mean_cells,
                    help="Adam's step for the means, in cells (the mean spacing of the Gaussians)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=run)

@@ -1,22 +1,301 @@
-"""Arguments several subcommands share, parsed the same way everywhere."""
+"""Every `hypergs` argument is checked here, while the command line is parsed and before any work:
+argparse types for numbers (positive counts, sizes and frames within limits.py), inputs that must
+exist and outputs that must be writable (io/files.check_output), with `Parser` printing a bad value
+as one line, `hypergs <command>: error: argument --x: ...`, exit status 2. `check_paths` then refuses
+an output that is one of the command's inputs (also through a link).
+
+Every argument that takes a value has a type from here or `choices` (tests/test_cli_arguments.py
+checks this for every subcommand and passes each type's `refused` examples to it).
+"""
 from __future__ import annotations
 
+import argparse
+import math
+from pathlib import Path
+
+from .. import limits
+from ..errors import HyperGSError, one_line
+from ..io import files
 from ..network import BACKENDS, resolve_encoder
+
+BIGGEST = 1 << 31  # no count or size of ours goes past this: int32 everywhere
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (`hypergs encode: error: ...`, exit 2); the usage is behind -h."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
+
+
+class ArgType:
+    """An argparse type: called with the text, returns the value or raises ArgumentTypeError.
+    `refused`: texts it must refuse (the tests pass them to every argument of this type)."""
+
+    refused: tuple[str, ...] = ()
+
+    def __repr__(self) -> str:  # argparse names the type in some messages
+        return type(self).__name__.lower()
+
+
+class Integer(ArgType):
+    """A whole number in [low, high], or in [low, limit] for a limits.Limit (read when parsing)."""
+
+    def __init__(self, low: int, high: int = BIGGEST, limit: limits.Limit | None = None):
+        self.low, self.high, self.limit = low, high, limit
+        self.refused = ("abc", "1.5", "", str(low - 1), str(10 ** 30)) + (("-5",) if low > -5 else ())
+
+    def __call__(self, text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < self.low:
+            raise argparse.ArgumentTypeError(f"must be at least {self.low}, got {value}")
+        if self.limit is not None:
+            _check_limit(self.limit, value)
+        if value > self.high:
+            raise argparse.ArgumentTypeError(f"must be at most {self.high}, got {value}")
+        return value
+
+
+class Real(ArgType):
+    """A finite number above `low` (or equal to it when `inclusive`), at most `high`."""
+
+    def __init__(self, low: float, inclusive: bool = False, high: float = math.inf):
+        self.low, self.inclusive, self.high = low, inclusive, high
+        below = low - 1 if inclusive else low
+        self.refused = ("abc", "", "nan", "inf", repr(below)) + ((repr(high * 2 + 1),) if high < math.inf else ())
+
+    def __call__(self, text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+        if value < self.low or (value == self.low and not self.inclusive):
+            raise argparse.ArgumentTypeError(f"must be {'at least' if self.inclusive else 'above'} {self.low:g}, "
+                                             f"got {value:g}")
+        if value > self.high:
+            raise argparse.ArgumentTypeError(f"must be at most {self.high:g}, got {value:g}")
+        return value
+
+
+class Text(ArgType):
+    """Any non-empty text (free-form: a data spec, a codec name, a prim path)."""
+
+    refused = ("",)
+
+    def __call__(self, text: str) -> str:
+        if not text.strip():
+            raise argparse.ArgumentTypeError("must not be empty")
+        return text
+
+
+class Name(ArgType):
+    """A file name without a folder (the stem of files written into a folder)."""
+
+    refused = ("", "a/b", "..")
+
+    def __call__(self, text: str) -> str:
+        if not text.strip() or Path(text).name != text or text in (".", ".."):
+            raise argparse.ArgumentTypeError(f"must be a file name without a folder, got {text!r}")
+        return text
+
+
+class InputFile(ArgType):
+    """An existing file, with one of `suffixes` when given."""
+
+    def __init__(self, suffixes=()):
+        self.suffixes = tuple(suffixes)
+        self.refused = ("", "/nonexistent/input" + (self.suffixes[0] if self.suffixes else ".bin"))
+
+    def __call__(self, text: str) -> str:
+        path = Path(text)
+        if self.suffixes and path.suffix.lower() not in self.suffixes:
+            raise argparse.ArgumentTypeError(f"{text}: must end in {', '.join(self.suffixes)}")
+        if not text or not path.is_file():
+            raise argparse.ArgumentTypeError(f"{text}: no such file")
+        return text
+
+
+class InputVideo(ArgType):
+    """A video file, an image sequence's folder or file, or a frame-number pattern (`shot.####.exr`)
+    whose folder exists (io/image_sequence.py reads the rest)."""
+
+    refused = ("", "/nonexistent/video.mp4", "/nonexistent/shot.####.png")
+
+    def __call__(self, text: str) -> str:
+        from ..io.image_sequence import has_frame_pattern
+        path = Path(text)
+        if text and (path.exists() or (has_frame_pattern(path.name) and path.parent.is_dir())):
+            return text
+        raise argparse.ArgumentTypeError(f"{text}: no such video, image sequence or folder")
+
+
+class InputFolder(ArgType):
+    refused = ("", "/nonexistent/folder")
+
+    def __call__(self, text: str) -> str:
+        if not text or not Path(text).is_dir():
+            raise argparse.ArgumentTypeError(f"{text}: no such folder")
+        return text
+
+
+class OutputFile(ArgType):
+    """A file to write: one of `suffixes` (when given) in an existing, writable folder, not a folder."""
+
+    def __init__(self, suffixes=()):
+        self.suffixes = tuple(suffixes)
+        suffix = self.suffixes[0] if self.suffixes else ".out"
+        self.refused = ("", "/nonexistent/folder/out" + suffix, "a\0b" + suffix) + (
+            ("out.bogus",) if self.suffixes else ())
+
+    def __call__(self, text: str) -> str:
+        if not text:
+            raise argparse.ArgumentTypeError("must not be empty")
+        try:
+            files.check_output(text, self.suffixes)
+        except HyperGSError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return text
+
+
+class OutputFolder(ArgType):
+    """A folder to write files into: it exists, or its parent does (it is created when written); with
+    `parents`, any of its ancestors may be missing (a run folder, runs/small)."""
+
+    def __init__(self, parents: bool = False):
+        self.parents = parents
+        self.refused = ("", "a\0b", "/proc/version/out" if parents else "/nonexistent/folder/out")
+
+    def __call__(self, text: str) -> str:
+        if not text:
+            raise argparse.ArgumentTypeError("must not be empty")
+        path = Path(text)
+        while self.parents and not path.parent.exists() and path.parent != path:
+            path = path.parent
+        try:
+            files.check_output_folder(path)
+        except HyperGSError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return text
+
+
+class Resolution(ArgType):
+    """WIDTHxHEIGHT within the image limits -> (width, height)."""
+
+    refused = ("abc", "", "0x10", "-5x10", "100000x10", "10x")
+
+    def __call__(self, text: str) -> tuple[int, int]:
+        try:
+            width, height = (int(v, 10) for v in text.lower().split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT (e.g. 1920x1080)") from None
+        try:
+            limits.check_image_size(width, height, text)
+        except HyperGSError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return width, height
+
+
+class FrameSize(ArgType):
+    """How a bench takes its frames: a square size N (image_side), 'cropN' (an N x N centre crop) or
+    'native'; returned as text ('256', 'crop480', 'native')."""
+
+    refused = ("abc", "", "0", "-3", "100000", "crop0", "crop")
+
+    def __call__(self, text: str) -> str:
+        if text == "native":
+            return text
+        if text.startswith("crop"):
+            return "crop" + str(image_side(text[4:]))
+        return str(image_side(text))
+
+
+class GaussianRange(ArgType):
+    """'N' or 'MIN:MAX' Gaussians per frame (1 <= MIN <= MAX within the limit); returned as text."""
+
+    refused = ("abc", "", "0:10", "10:5", "1:2000000000", "5:")
+
+    def __call__(self, text: str) -> str:
+        parts = text.split(":")
+        if len(parts) > 2:
+            raise argparse.ArgumentTypeError(f"{text!r} is not N or MIN:MAX")
+        low, high = gaussian_count(parts[0]), gaussian_count(parts[-1])
+        if low > high:
+            raise argparse.ArgumentTypeError(f"{text!r}: MIN is above MAX")
+        return text
+
+
+def _check_limit(limit: limits.Limit, value) -> None:
+    try:
+        limit.check(value, "")
+    except HyperGSError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+positive_int = Integer(1)
+non_negative_int = Integer(0)
+gaussian_count = Integer(1, limit=limits.GAUSSIANS)
+frame_count = Integer(1, limit=limits.FRAMES)
+frame_index = Integer(0, limit=limits.FRAMES)
+image_side = Integer(1, limit=limits.SIDE)
+positive_float = Real(0.0)
+non_negative_float = Real(0.0, inclusive=True)
+fraction = Real(0.0, inclusive=True, high=1.0)
+text = Text()
+name = Name()
+input_video = InputVideo()
+input_folder = InputFolder()
+output_folder = OutputFolder()
+run_folder = OutputFolder(parents=True)
+resolution = Resolution()
+frame_size = FrameSize()
+gaussian_range = GaussianRange()
+
+
+def command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The parser of the (sub)command `args` were parsed for."""
+    while parser._subparsers is not None:
+        action = next(a for a in parser._subparsers._group_actions if isinstance(a, argparse._SubParsersAction))
+        parser = action.choices[getattr(args, action.dest)]
+    return parser
+
+
+def check_paths(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse (parser.error) an output file that is one of the command's inputs, also through a link:
+    `-o link.npz` where link.npz points at the input video."""
+    def values(kinds):
+        for action in parser._actions:
+            if isinstance(action.type, kinds):
+                value = getattr(args, action.dest, None)
+                for v in (value if isinstance(value, list) else [value]):
+                    if v is not None:
+                        yield action, v
+    for out_action, output in values(OutputFile):
+        for in_action, source in values((InputFile, InputVideo, InputFolder)):
+            if files.same_file(output, source):
+                parser.error(f"argument {'/'.join(out_action.option_strings) or out_action.dest}: {output} "
+                             f"is the input {source}; choose another output")
 
 
 def add_encoder_arguments(parser) -> None:
     parser.add_argument("--encoder", default="network", choices=["network", "floor"],
                         help="the trained network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--weights", default=None, help="folder with <name>.json/.safetensors/.onnx")
-    parser.add_argument("--refine", type=int, default=0, help="per-frame refinement steps after the prediction")
+    parser.add_argument("--weights", default=None, type=input_folder,
+                        help="folder with <name>.json/.safetensors/.onnx")
+    parser.add_argument("--refine", type=non_negative_int, default=0,
+                        help="per-frame refinement steps after the prediction")
 
 
 def add_density_arguments(parser, default_cell: float | None = None) -> None:
     """How many Gaussians: a count per frame, or a cell size (one Gaussian per cell x cell source pixels)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--gaussians", type=int, default=None, help="Gaussians per frame (about; on a grid of cells)")
-    group.add_argument("--cell", type=float, default=None,
+    group.add_argument("--gaussians", type=gaussian_count, default=None, help="Gaussians per frame (about; on a grid of cells)")
+    group.add_argument("--cell", type=positive_float, default=None,
                        help=f"source pixels per Gaussian cell side (default {default_cell:g})" if default_cell
                        else "source pixels per Gaussian cell side")
     parser.set_defaults(default_cell=default_cell)

@@ -8,46 +8,52 @@ from ..model import PRESETS
 from ..network import BUNDLED_NAME, WEIGHTS_DIR
 from ..training.data import DEFAULT_SPEC
 from ..training.sources import DEFAULT_ROOT
+from . import options
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the HyperGS network")
-    p.add_argument("--out", default="runs/small", help="run folder (checkpoint, log); resumes from it")
+    p.add_argument("--out", default="runs/small", type=options.run_folder,
+                   help="run folder (checkpoint, log); resumes from it")
     p.add_argument("--preset", default="conv", choices=sorted(PRESETS),
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
-    p.add_argument("--init-from", default=None,
+    p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
                    help="start a new conv run from these weights (.safetensors), e.g. the bundled model's")
-    p.add_argument("--data", default=DEFAULT_SPEC, help="training.data.build_sources spec")
-    p.add_argument("--data-root", default=DEFAULT_ROOT)
-    p.add_argument("--eval-videos", nargs="*", default=[],
+    p.add_argument("--data", default=DEFAULT_SPEC, type=options.text, help="training.data.build_sources spec")
+    p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
+    p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,
                    help="videos whose PSNR is logged at every evaluation (reporting only)")
-    p.add_argument("--steps", type=int, default=20000, help="total steps of the cosine schedule")
-    p.add_argument("--minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
-    p.add_argument("--batch", type=int, default=None, help="clips per step per process (conv 8, transformer 4)")
-    p.add_argument("--size", type=int, default=128, help="crop size of the conv network's training frames")
-    p.add_argument("--lr", type=float, default=None, help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
-    p.add_argument("--clip", type=float, default=None, help="gradient norm clipping (conv 0.5, transformer 1.0)")
-    p.add_argument("--warmup", type=int, default=200)
-    p.add_argument("--min-lr-ratio", type=float, default=0.1)
-    p.add_argument("--gaussians", default="64:1024",
+    p.add_argument("--steps", type=options.positive_int, default=20000, help="total steps of the cosine schedule")
+    p.add_argument("--minutes", type=options.non_negative_float, default=None,
+                   help="stop (with a checkpoint) after this wall time")
+    p.add_argument("--batch", type=options.positive_int, default=None,
+                   help="clips per step per process (conv 8, transformer 4)")
+    p.add_argument("--size", type=options.image_side, default=128, help="crop size of the conv network's training frames")
+    p.add_argument("--lr", type=options.positive_float, default=None,
+                   help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
+    p.add_argument("--clip", type=options.positive_float, default=None,
+                   help="gradient norm clipping (conv 0.5, transformer 1.0)")
+    p.add_argument("--warmup", type=options.non_negative_int, default=200)
+    p.add_argument("--min-lr-ratio", type=options.fraction, default=0.1)
+    p.add_argument("--gaussians", default="64:1024", type=options.gaussian_range,
                    help="transformer: N per frame, log-uniform in MIN:MAX per step (conv: one per 4x4 pixels)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--log-every", type=int, default=20)
-    p.add_argument("--eval-every", type=int, default=250)
-    p.add_argument("--checkpoint-every", type=int, default=100)
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--seed", type=options.non_negative_int, default=0)
+    p.add_argument("--log-every", type=options.positive_int, default=20)
+    p.add_argument("--eval-every", type=options.positive_int, default=250)
+    p.add_argument("--checkpoint-every", type=options.positive_int, default=100)
+    p.add_argument("--threads", type=options.positive_int, default=None, help="torch CPU threads")
     p.set_defaults(func=_train_command)
 
     p = subparsers.add_parser("export", help="training checkpoint -> weights (safetensors + JSON card + ONNX)")
-    p.add_argument("run", help="run folder holding checkpoint.pt")
-    p.add_argument("--out", default=str(WEIGHTS_DIR))
-    p.add_argument("--name", default=BUNDLED_NAME)
+    p.add_argument("run", type=options.input_folder, help="run folder holding checkpoint.pt")
+    p.add_argument("--out", default=str(WEIGHTS_DIR), type=options.output_folder)
+    p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
     p.set_defaults(func=_export_command)
 
     p = subparsers.add_parser("export-onnx", help="weights (safetensors) -> <name>.onnx beside them")
-    p.add_argument("--weights", default=str(WEIGHTS_DIR))
-    p.add_argument("--name", default=BUNDLED_NAME)
+    p.add_argument("--weights", default=str(WEIGHTS_DIR), type=options.input_folder)
+    p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
     p.set_defaults(func=_export_onnx_command)
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import HyperGSError
-from ..gaussians import GaussianVideo
+from ..gaussians import GaussianVideo, param_problem
 
 CLIP_SUFFIXES = (".hgs", ".npz", ".usd", ".usda", ".usdc")
 _SAVE_OPTIONS = {".hgs": {"bits", "group_size", "mode", "quantizer"}, ".npz": {"bits"},
@@ -31,15 +31,15 @@ def save_clip(video: GaussianVideo, path, **options) -> None:
     unknown = set(options) - _SAVE_OPTIONS[suffix]
     if unknown:
         raise HyperGSError(f"{path}: option(s) {', '.join(sorted(unknown))} do not apply to {suffix} files")
+    problem = param_problem(video.params)
+    if problem:  # a file that no reader would accept
+        raise HyperGSError(f"{path}: {problem}")
     if suffix == ".hgs":
         from .hgs import save_hgs
         save_hgs(video, path, **options)
     elif suffix == ".npz":
         from .npz import save_npz
-        try:
-            save_npz(video, path)
-        except OSError as e:
-            raise HyperGSError(f"{path}: cannot write ({e.strerror})") from e
+        save_npz(video, path)
     else:
         from .usd import export_usd
         export_usd(video, path, start_frame=options.get("start_frame", 1))

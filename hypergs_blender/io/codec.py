@@ -33,7 +33,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import HyperGSError
-from ..gaussians import NUM_PARAMS
+from ..gaussians import NUM_PARAMS, param_problem
 
 LINEAR, LOG, ANGLE = 0, 1, 2
 TRANSFORMS = (LINEAR, LINEAR, LOG, LOG, ANGLE, LINEAR, LINEAR, LINEAR)  # per parameter, fixed by the format
@@ -150,13 +150,9 @@ class Quantizer:
 
 
 def check_params(params: np.ndarray) -> None:
-    params = np.asarray(params)
-    if params.shape[-1:] != (NUM_PARAMS,):
-        raise CodecError(f"Gaussian parameters must have {NUM_PARAMS} values each, got shape {params.shape}")
-    if not np.all(np.isfinite(params)):
-        raise CodecError("Gaussian parameters contain NaN or infinite values")
-    if np.any(params[..., 2:4] <= 0):
-        raise CodecError("Gaussian scales must be > 0")
+    problem = param_problem(params)
+    if problem:
+        raise CodecError(problem)
 
 
 def to_domain(params: np.ndarray) -> np.ndarray:

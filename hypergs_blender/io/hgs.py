@@ -15,10 +15,12 @@ Layout (all integers little-endian; no pickle, nothing executable):
 
 The writer writes the header first (frame count 0, index offset 0), streams chunks as groups fill,
 then writes the index and rewrites the header with the real frame count and index offset; it writes
-to `<path>.part` and renames on success, so an interrupted write never leaves a half file under the
-final name. The reader checks every size against the file length and the format's limits before it
-allocates, verifies each CRC before decoding, and raises HgsError (a HyperGSError) for anything
-wrong: a damaged or truncated file, a wrong version, a file that is not .hgs.
+a temporary file beside the output and renames it on success (files.AtomicOutput), so an interrupted
+or failed write never leaves a half file under the final name nor touches the file there. The reader
+checks every size against the file length, and the canvas, Gaussian, frame and metadata counts
+against limits.py, before it allocates; it verifies each CRC before decoding, and raises HgsError (a
+HyperGSError) for anything wrong: a damaged or truncated file, a wrong version, a file that is not
+.hgs; LimitError for a clip past the limits.
 """
 from __future__ import annotations
 
@@ -35,20 +37,16 @@ from typing import Iterator
 
 import numpy as np
 
+from .. import limits
 from .codec import TRANSFORMS, CodecError, Quantizer, decode_group, encode_group
+from .files import AtomicOutput
 from ..errors import HyperGSError
-from ..gaussians import NUM_PARAMS, GaussianVideo
+from ..gaussians import MAX_FPS, MAX_GRID, NUM_PARAMS, GaussianVideo
 
 MAGIC = b"\x89HGS\r\n\x1a\n"
 VERSION = 1
 DEFAULT_GROUP_SIZE = 16
 MAX_GROUP_SIZE = 64
-MAX_GAUSSIANS = 1 << 20
-MAX_CANVAS = 1 << 16
-MAX_GRID = 1 << 10
-MAX_JSON = 1 << 20
-MAX_FPS = 10000.0
-DEFAULT_MAX_BYTES = 8 << 30  # read_all refuses clips that would decode to more than this
 
 _HEADER = struct.Struct("<8sHHIIdIHHIHH8B8B16dQI")
 _CHUNK = struct.Struct("<4sIHHI")  # magic, first frame, frames, reserved, payload length
@@ -85,8 +83,7 @@ class HgsHeader:
                                              default=_json_default).encode()
             except (TypeError, ValueError) as e:
                 raise HgsError(f"clip metadata cannot be stored: {e}") from e
-        if len(self.json_bytes) > MAX_JSON:
-            raise HgsError(f"clip metadata too large ({len(self.json_bytes)} bytes of JSON, at most {MAX_JSON})")
+        limits.METADATA.check(len(self.json_bytes), "clip metadata")
         ranges = [v for pair in zip(self.quantizer.lo, self.quantizer.hi) for v in pair]
         fixed = _HEADER.pack(MAGIC, self.version, 0, self.canvas_width, self.canvas_height, float(self.fps),
                              self.num_gaussians, self.grid[0], self.grid[1], self.num_frames, self.group_size, 0,
@@ -114,8 +111,9 @@ class HgsHeader:
         (_, version, _flags, cw, ch, fps, n, gc, gr, frames, group, _res), rest = v[:12], v[12:]
         bits, transforms, ranges = rest[:8], rest[8:16], rest[16:32]
         index_offset, json_len = rest[32], rest[33]
-        if json_len > MAX_JSON or _HEADER.size + json_len + _CRC.size > file_size:
+        if _HEADER.size + json_len + _CRC.size > file_size:
             raise HgsError(f"damaged header: metadata length {json_len} does not fit the file")
+        limits.METADATA.check(json_len, "header")
         json_bytes = f.read(json_len)
         crc = f.read(_CRC.size)
         if len(json_bytes) != json_len or len(crc) != _CRC.size:
@@ -123,12 +121,12 @@ class HgsHeader:
         if _CRC.unpack(crc)[0] != zlib.crc32(fixed + json_bytes):
             raise HgsError("damaged header (checksum mismatch)")
         problems = []
-        if not (1 <= cw <= MAX_CANVAS and 1 <= ch <= MAX_CANVAS):
+        if not (cw >= 1 and ch >= 1):
             problems.append(f"canvas {cw}x{ch}")
         if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
             problems.append(f"fps {fps}")
-        if not 1 <= n <= MAX_GAUSSIANS:
-            problems.append(f"{n} Gaussians per frame (at most {MAX_GAUSSIANS})")
+        if not n >= 1:
+            problems.append(f"{n} Gaussians per frame")
         if not (1 <= gc <= MAX_GRID and 1 <= gr <= MAX_GRID):
             problems.append(f"grid {gc}x{gr}")
         if not 1 <= group <= MAX_GROUP_SIZE:
@@ -137,6 +135,9 @@ class HgsHeader:
             problems.append(f"parameter transforms {transforms}")
         if problems:
             raise HgsError("damaged or unsupported header: " + ", ".join(problems))
+        limits.check_image_size(cw, ch, "canvas")
+        limits.GAUSSIANS.check(n, "header")
+        limits.FRAMES.check(frames, "header")
         try:
             quantizer = Quantizer(bits, ranges[0::2], ranges[1::2])
             meta = json.loads(json_bytes.decode("utf-8"))
@@ -173,10 +174,10 @@ class HgsWriter:
                  group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto", bits=8):
         if not 1 <= group_size <= MAX_GROUP_SIZE:
             raise HgsError(f"group size must be in 1..{MAX_GROUP_SIZE}, got {group_size}")
-        if not 1 <= num_gaussians <= MAX_GAUSSIANS:
-            raise HgsError(f"a .hgs clip holds 1..{MAX_GAUSSIANS} Gaussians per frame, got {num_gaussians}")
-        if not (1 <= canvas_width <= MAX_CANVAS and 1 <= canvas_height <= MAX_CANVAS):
-            raise HgsError(f"canvas {canvas_width}x{canvas_height} out of range")
+        if num_gaussians < 1:
+            raise HgsError(f"a .hgs clip holds at least one Gaussian per frame, got {num_gaussians}")
+        limits.GAUSSIANS.check(num_gaussians, str(path))
+        limits.check_image_size(canvas_width, canvas_height, f"{path}: canvas")
         if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
             raise HgsError(f"fps {fps} out of range")
         grid = tuple(int(g) for g in grid)
@@ -190,12 +191,9 @@ class HgsWriter:
         self.clipped = 0
         self._pending: list[np.ndarray] = []  # quantized frames of the group being filled
         self._entries: list[tuple[int, int, int, int]] = []
-        self._part = self.path.with_name(self.path.name + ".part")
         header = self.header.pack()
-        try:
-            self._file = open(self._part, "wb")
-        except OSError as e:
-            raise HgsError(f"{self.path}: cannot write ({e.strerror})") from e
+        self._output = AtomicOutput(self.path)
+        self._file = self._output.open()
         self._write(header)
         self._offset = len(header)
 
@@ -204,7 +202,7 @@ class HgsWriter:
             self._file.write(data)
         except OSError as e:
             self.abort()
-            raise HgsError(f"{self.path}: cannot write ({e.strerror})") from e
+            raise HgsError(f"{self.path}: cannot write ({e.strerror})") from None
 
     @property
     def num_frames(self) -> int:
@@ -256,25 +254,19 @@ class HgsWriter:
             self.header.index_offset = self._offset
             self._file.seek(0)
             self._file.write(self.header.pack())
-            self._file.close()
-            self._file = None
-            os.replace(self._part, self.path)
         except OSError as e:
             self.abort()
-            raise HgsError(f"{self.path}: cannot write ({e.strerror})") from e
+            raise HgsError(f"{self.path}: cannot write ({e.strerror})") from None
         except BaseException:
             self.abort()
             raise
+        self._file = None
+        self._output.commit()
 
     def abort(self) -> None:
-        """Stop without producing a file."""
-        if self._file is not None:
-            self._file.close()
-            self._file = None
-        try:
-            self._part.unlink()
-        except FileNotFoundError:
-            pass
+        """Stop without producing a file (the file at the path, if any, stays as it was)."""
+        self._file = None
+        self._output.discard()
 
     def __enter__(self) -> "HgsWriter":
         return self
@@ -309,9 +301,9 @@ class HgsReader:
             self._file.seek(0)
             self.header = HgsHeader.read(self._file, self.file_size)
             self._entries = self._read_index()
-        except HgsError as e:
+        except HyperGSError as e:  # HgsError, LimitError
             self._file.close()
-            raise HgsError(f"{self.path}: {e}") from None
+            raise type(e)(f"{self.path}: {e}") from None
         except BaseException:
             self._file.close()
             raise
@@ -419,22 +411,19 @@ class HgsReader:
         for frame in range(max(0, start), stop):
             yield frame, self.read_frame(frame)
 
-    def read_frames(self, start: int = 0, stop: int | None = None, max_bytes: int = DEFAULT_MAX_BYTES) -> np.ndarray:
-        """float32 [T, N, 8] for frames [start, stop); refuses more than max_bytes of output."""
+    def read_frames(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """float32 [T, N, 8] for frames [start, stop); refuses more than limits.BYTES of output (read
+        frame by frame then)."""
         stop = self.num_frames if stop is None else min(stop, self.num_frames)
         count = max(0, stop - max(0, start))
-        need = count * self.num_gaussians * NUM_PARAMS * 4
-        if need > max_bytes:
-            raise HgsError(f"{self.path}: {count} frames of {self.num_gaussians} Gaussians need "
-                           f"{need / 2**30:.1f} GiB, more than the {max_bytes / 2**30:.1f} GiB allowed; "
-                           "read it frame by frame")
+        limits.check_clip_size(count, self.num_gaussians, str(self.path))
         out = np.empty((count, self.num_gaussians, NUM_PARAMS), np.float32)
         for i, (_, params) in enumerate(self.iter_frames(start, stop)):
             out[i] = params
         return out
 
-    def read_all(self, max_bytes: int = DEFAULT_MAX_BYTES) -> GaussianVideo:
-        return GaussianVideo(self.read_frames(max_bytes=max_bytes), self.canvas_width, self.canvas_height,
+    def read_all(self) -> GaussianVideo:
+        return GaussianVideo(self.read_frames(), self.canvas_width, self.canvas_height,
                              self.fps, self.grid, dict(self.source))
 
     def verify(self) -> None:
@@ -494,10 +483,10 @@ def save_hgs(video: GaussianVideo, path, bits=8, group_size: int = DEFAULT_GROUP
     return Path(path).stat().st_size
 
 
-def load_hgs(source, max_bytes: int = DEFAULT_MAX_BYTES) -> GaussianVideo:
+def load_hgs(source) -> GaussianVideo:
     """A whole clip from a .hgs path or the bytes of one."""
     with HgsReader(source) as reader:
-        return reader.read_all(max_bytes)
+        return reader.read_all()
 
 
 def hgs_bytes(video: GaussianVideo, bits=8, group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto") -> bytes:

@@ -19,8 +19,9 @@ from typing import Iterator
 
 import numpy as np
 
+from .. import limits
 from ..errors import VideoError
-from .images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS, read_image, resize_crop
+from .images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS, image_size, read_image, resize_crop
 from .video import VideoInfo
 
 _PATTERN = re.compile(r"(#+)|%(0?\d*)d|\{frame(?::0?(\d*)d)?\}")
@@ -33,7 +34,12 @@ def is_image_sequence(path) -> bool:
     p = Path(str(path))
     if p.suffix.lower() in VIDEO_EXTENSIONS:
         return False
-    return bool(_PATTERN.search(p.name)) or p.is_dir() or p.suffix.lower() in IMAGE_EXTENSIONS
+    return has_frame_pattern(p.name) or p.is_dir() or p.suffix.lower() in IMAGE_EXTENSIONS
+
+
+def has_frame_pattern(name: str) -> bool:
+    """True for a file name with a frame-number field: `#` runs, %0Nd or {frame[:0Nd]}."""
+    return bool(_PATTERN.search(name))
 
 
 def _split_pattern(name: str) -> tuple[str, str] | None:
@@ -87,6 +93,7 @@ def list_frames(path) -> list[tuple[int, Path]]:
             frames[number] = f
     if not frames:
         raise VideoError(f"{text}: no image files match this sequence")
+    limits.FRAMES.check(len(frames), text)
     return sorted(frames.items())
 
 
@@ -98,10 +105,11 @@ def _listdir(folder: Path) -> list[Path]:
 
 
 def probe(path, fps: float = 24.0) -> VideoInfo:
-    """Size (of the first frame), frame rate (image files have none: `fps`) and frame count."""
+    """Size (of the first frame, read from its header), frame rate (image files have none: `fps`) and
+    frame count."""
     frames = list_frames(path)
-    first = read_image(frames[0][1])
-    return VideoInfo(str(path), first.shape[1], first.shape[0], float(fps), len(frames))
+    width, height = image_size(frames[0][1])
+    return VideoInfo(str(path), width, height, float(fps), len(frames))
 
 
 def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:

@@ -5,7 +5,10 @@ Reading: integer files (PNG, TIFF, DPX, JPEG) are display-referred (sRGB-encoded
 files (EXR, float TIFF) are scene-linear, encoded with the sRGB transfer curve and clipped to [0, 1],
 unless their colour space says sRGB. No other colour management (a log DPX stays log). Alpha is
 dropped after OpenImageIO's premultiplication (the image composited over black); grey is replicated
-to RGB; the EXIF orientation is applied.
+to RGB; the EXIF orientation is applied. The size in the file's header is checked against the
+limits (limits.py) before any pixel is decoded.
+
+Writing goes through files.AtomicOutput: a temporary file renamed onto the name when complete.
 """
 from __future__ import annotations
 
@@ -13,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import limits
 from ..colour import linear_to_srgb, srgb_to_linear
-from ..errors import HyperGSError, VideoError
+from ..errors import HyperGSError, VideoError, one_line
+from .files import AtomicOutput
 
 IMAGE_EXTENSIONS = (".png", ".exr", ".dpx", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".tga", ".hdr", ".cin",
                     ".webp")
@@ -26,18 +31,43 @@ def list_images(folder) -> list[Path]:
     return sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
 
 
+def _open(path):
+    """(ImageInput, spec) of an image file whose size is within the limits; raises VideoError or
+    LimitError naming the file."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise VideoError(f"{path}: not a readable image ({one_line(oiio.geterror()) or 'unknown error'})")
+    spec = inp.spec()
+    try:
+        if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+            raise VideoError(f"{path}: image has no pixels")
+        if spec.depth > 1:
+            raise VideoError(f"{path}: a volume image ({spec.depth} slices) is not a picture")
+        limits.check_image_size(spec.width, spec.height, str(path))
+        limits.BYTES.check(spec.width * spec.height * min(spec.nchannels, 3) * 4, str(path))
+    except BaseException:
+        inp.close()
+        raise
+    return inp, spec
+
+
+def image_size(path) -> tuple[int, int]:
+    """(width, height) of an image file, from its header (no pixels decoded), after the EXIF rotation."""
+    inp, spec = _open(path)
+    inp.close()
+    turned = spec.get_int_attribute("Orientation", 1) in (5, 6, 7, 8)
+    return (spec.height, spec.width) if turned else (spec.width, spec.height)
+
+
 def read_image(path, max_short_side: int | None = None) -> np.ndarray:
     """One image file -> uint8 [H, W, 3] RGB (see the module doc), area-downscaled so that its short
     side is at most `max_short_side` when given. Raises VideoError naming the file."""
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise VideoError(f"{path}: not a readable image ({oiio.geterror() or 'unknown error'})")
+    inp, spec = _open(path)
     try:
-        spec = inp.spec()
-        if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
-            raise VideoError(f"{path}: image has no pixels")
         channels = min(spec.nchannels, 3) if spec.nchannels != 2 else 1
         if spec.format.basetype == oiio.UINT8:
             pixels = inp.read_image(0, 0, 0, channels, oiio.UINT8)
@@ -51,7 +81,7 @@ def read_image(path, max_short_side: int | None = None) -> np.ndarray:
     finally:
         inp.close()
     if pixels is None:
-        raise VideoError(f"{path}: cannot decode image ({oiio.geterror() or 'unknown error'})")
+        raise VideoError(f"{path}: cannot decode image ({one_line(oiio.geterror()) or 'unknown error'})")
     pixels = np.asarray(pixels).reshape(spec.height, spec.width, channels)
     if channels == 1:
         pixels = np.repeat(pixels, 3, axis=-1)
@@ -111,18 +141,19 @@ def write_image(path, rgb: np.ndarray) -> None:
         space = "sRGB"
     out = oiio.ImageOutput.create(str(path))
     if out is None:
-        raise HyperGSError(f"{path}: no image format for {ext!r} ({oiio.geterror()})")
+        raise HyperGSError(f"{path}: no image format for {ext!r} ({one_line(oiio.geterror())})")
     spec = oiio.ImageSpec(width, height, 3, fmt)
     spec.attribute("oiio:ColorSpace", space)
     if ext == ".dpx":
         spec.attribute("oiio:BitsPerSample", 10)
-    if not out.open(str(path), spec):
-        raise HyperGSError(f"{path}: cannot write ({out.geterror() or oiio.geterror()})")
-    ok = out.write_image(np.ascontiguousarray(pixels))
-    error = out.geterror()
-    out.close()
-    if not ok:
-        raise HyperGSError(f"{path}: cannot write ({error})")
+    with AtomicOutput(path) as temp:
+        if not out.open(str(temp), spec):
+            raise HyperGSError(f"{path}: cannot write ({one_line(out.geterror() or oiio.geterror())})")
+        ok = out.write_image(np.ascontiguousarray(pixels))
+        error = out.geterror()
+        out.close()
+        if not ok:
+            raise HyperGSError(f"{path}: cannot write ({one_line(error)})")
 
 
 def resize_exact(image: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -17,16 +17,26 @@ Layout written by `export_usd`:
 
 `import_usd` reads that prim back into a GaussianVideo (float32: exact up to float rounding of the
 position mapping). The suffix picks the file format: .usd / .usdc binary, .usda text.
+Reading checks the file size, the frame and point counts against limits.py before it reads the
+frames, and every value after (GaussianVideo.checked: no NaN, scales > 0). Payloads are not loaded.
+usd-core's binary (crate) reader trusts the array sizes in the file: a damaged 3 KB .usdc can make it
+allocate tens of GB (tests/test_input_fuzz.py found it). So the read runs with the process' address
+space capped at its current size plus a headroom (`_address_space_headroom`, Linux), where such an
+allocation fails and USD reports an error instead.
 """
 from __future__ import annotations
 
 import json
+import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import HyperGSError
+from .. import limits
+from ..errors import HyperGSError, reason
 from ..gaussians import NUM_PARAMS, GaussianVideo
+from .files import AtomicOutput
 
 ROOT_PATH = "/GaussianVideo"
 PRIM_PATH = "/GaussianVideo/Gaussians"
@@ -84,12 +94,13 @@ def export_usd(video: GaussianVideo, path, start_frame: int = 1, prim_path: str 
         scale.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 2:4])), time)
         rotation.Set(Vt.FloatArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 4])), time)
         color.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(video.params[t, :, 5:8])), time)
-    try:
-        ok = stage.GetRootLayer().Export(str(path))
-    except Exception as e:  # pxr raises Tf.ErrorException
-        raise UsdError(f"{path}: cannot write USD ({e})") from e
-    if not ok:
-        raise UsdError(f"{path}: cannot write USD")
+    with AtomicOutput(path) as temp:
+        try:
+            ok = stage.GetRootLayer().Export(str(temp))
+        except Exception as e:  # pxr raises Tf.ErrorException
+            raise UsdError(f"{path}: cannot write USD ({e})") from None
+        if not ok:
+            raise UsdError(f"{path}: cannot write USD")
 
 
 def find_gaussian_prim(stage, prim_path: str | None = None):
@@ -109,17 +120,54 @@ def find_gaussian_prim(stage, prim_path: str | None = None):
 
 def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
     """Read a Gaussian video written by export_usd back (frames in time-sample order)."""
-    from pxr import Tf, Usd, UsdGeom
+    from pxr import Tf, Usd
 
     path = Path(path)
     if not path.is_file():
         raise UsdError(f"{path}: no such file")
+    limits.BYTES.check(path.stat().st_size, str(path))
+    with _address_space_headroom(4 * limits.BYTES.value + (1 << 30)):
+        try:
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadNone)
+        except Tf.ErrorException as e:
+            raise UsdError(f"{path}: not a readable USD file ({reason(e)})") from None
+        if stage is None:
+            raise UsdError(f"{path}: not a readable USD file")
+        try:
+            return _read_clip(stage, path, prim_path)
+        except (Tf.ErrorException, TypeError, ValueError) as e:  # damaged data: USD errors, unconvertible values
+            raise UsdError(f"{path}: damaged USD data ({reason(e)})") from None
+        except MemoryError:
+            raise UsdError(f"{path}: damaged USD data (declares arrays too large to read)") from None
+
+
+@contextmanager
+def _address_space_headroom(nbytes: int):
+    """While inside, the process may grow by at most `nbytes` of address space (RLIMIT_AS, where
+    /proc/self/statm tells the current size: Linux; elsewhere no cap)."""
     try:
-        stage = Usd.Stage.Open(str(path))
-    except Tf.ErrorException as e:
-        raise UsdError(f"{path}: not a readable USD file ({str(e).strip().splitlines()[-1]})") from e
-    if stage is None:
-        raise UsdError(f"{path}: not a readable USD file")
+        import resource
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (ImportError, OSError, ValueError):
+        yield
+        return
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = used + nbytes
+    if soft != resource.RLIM_INFINITY:
+        cap = min(cap, soft)
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+def _read_clip(stage, path: Path, prim_path: str | None) -> GaussianVideo:
+    from pxr import Usd, UsdGeom
+
     try:
         prim = find_gaussian_prim(stage, prim_path)
     except UsdError as e:
@@ -129,8 +177,8 @@ def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
         width, height = int(meta["canvas_width"]), int(meta["canvas_height"])
         grid = tuple(int(g) for g in meta.get("grid", (1, 1)))
         source = json.loads(meta.get("source", "{}"))
-    except (KeyError, TypeError, ValueError) as e:
-        raise UsdError(f"{path}: damaged HyperGS metadata on {prim.GetPath()} ({e})") from e
+    except (KeyError, TypeError, ValueError, OverflowError, RecursionError) as e:
+        raise UsdError(f"{path}: damaged HyperGS metadata on {prim.GetPath()} ({type(e).__name__}: {e})") from None
     if width <= 0 or height <= 0 or len(grid) != 2:
         raise UsdError(f"{path}: damaged HyperGS metadata on {prim.GetPath()}")
     points = UsdGeom.Points(prim)
@@ -142,24 +190,29 @@ def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
     if missing:
         raise UsdError(f"{path}: {prim.GetPath()} lacks {', '.join(missing)}")
     times = attrs["points"].GetTimeSamples() or [Usd.TimeCode.Default()]
+    limits.FRAMES.check(len(times), str(path))
     frames = []
     half = np.array([width / 2, -height / 2])
     for time in times:
         values = {name: attr.Get(time) for name, attr in attrs.items()}
         if any(v is None for v in values.values()):
             raise UsdError(f"{path}: frame at time {time} lacks some of {', '.join(attrs)}")
-        pos = np.asarray(values["points"], np.float64).reshape(-1, 3)
-        n = len(pos)
-        frame = np.empty((n, NUM_PARAMS), np.float32)
         try:
-            frame[:, 0:2] = pos[:, :2] / half
+            pos = np.asarray(values["points"], np.float64).reshape(-1, 3)
+            n = len(pos)
+            if not frames:
+                limits.check_clip_size(len(times), n, str(path))
+            frame = np.empty((n, NUM_PARAMS), np.float32)
+            with np.errstate(over="ignore", invalid="ignore"):  # GaussianVideo.checked reports them
+                frame[:, 0:2] = pos[:, :2] / half
             frame[:, 2:4] = np.asarray(values["scale"], np.float32).reshape(n, 2)
             frame[:, 4] = np.asarray(values["rotation"], np.float32).reshape(n)
             frame[:, 5:8] = np.asarray(values["color"], np.float32).reshape(n, 3)
-        except ValueError:
-            raise UsdError(f"{path}: frame at time {time}: primvar sizes do not match the {n} points") from None
+        except (TypeError, ValueError):
+            raise UsdError(f"{path}: frame at time {time}: points and primvars are not {NUM_PARAMS} numbers "
+                           "per point") from None
         if frames and n != frames[0].shape[0]:
             raise UsdError(f"{path}: the number of points changes over time ({frames[0].shape[0]} then {n})")
         frames.append(frame)
     fps = stage.GetTimeCodesPerSecond() or 24.0
-    return GaussianVideo(np.stack(frames), width, height, float(fps), grid, source)
+    return GaussianVideo.checked(path, np.stack(frames), width, height, fps, grid, source)

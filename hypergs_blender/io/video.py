@@ -8,6 +8,7 @@ from typing import Iterator
 
 import numpy as np
 
+from .. import limits
 from ..errors import VideoError
 
 
@@ -47,6 +48,8 @@ def probe(path) -> VideoInfo:
     with container:
         fps = float(stream.average_rate or stream.guessed_rate or 24)
         width, height = stream.codec_context.width, stream.codec_context.height
+        if width > 0 and height > 0:  # before decoding anything
+            limits.check_image_size(width, height, str(path))
         count = stream.frames
         if count <= 0:
             try:
@@ -55,6 +58,7 @@ def probe(path) -> VideoInfo:
                 raise VideoError(f"{path}: cannot decode video ({e})") from e
     if count <= 0 or width <= 0 or height <= 0:
         raise VideoError(f"{path}: video has no decodable frames")
+    limits.FRAMES.check(count, str(path))
     return VideoInfo(str(path), width, height, fps, count)
 
 
@@ -78,6 +82,7 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
                     if index != wanted[position]:
                         continue
                     position += 1
+                limits.check_image_size(frame.width, frame.height, f"{path}: frame {index}")
                 yield index, to_canvas(frame, size)
         except av.error.FFmpegError as e:
             raise VideoError(f"{path}: cannot decode video ({e})") from e

@@ -6,7 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import HyperGSError
+from ..errors import HyperGSError, reason
+from ..io.files import AtomicOutput, write_bytes
 from ..network import BUNDLED_NAME
 
 ONNX_OPSET = 18
@@ -23,9 +24,10 @@ def save_weights(model, directory, name: str = BUNDLED_NAME, info: dict | None =
     from safetensors.torch import save_file
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(directory / f"{name}.safetensors"))
+    with AtomicOutput(directory / f"{name}.safetensors") as temp:
+        save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(temp))
     (directory / f"{name}.safetensors").chmod(0o644)  # safetensors writes 0600; the weights are for everyone
-    (directory / f"{name}.json").write_text(json.dumps(card_of(model, info), indent=2) + "\n")
+    write_bytes(directory / f"{name}.json", (json.dumps(card_of(model, info), indent=2) + "\n").encode())
 
 
 def export_onnx(model, path) -> None:
@@ -39,18 +41,36 @@ def export_onnx(model, path) -> None:
     program = torch.onnx.export(model.eval(), (frames,), input_names=["frames"], output_names=["params"],
                                 opset_version=ONNX_OPSET, dynamo=True, external_data=False,
                                 dynamic_shapes={"frames": {0: batch, 1: m * rows, 2: m * cols}})
-    program.save(str(path))
+    with AtomicOutput(path) as temp:
+        program.save(str(temp))
+
+
+def load_checkpoint(path) -> dict:
+    """A training checkpoint, loaded with weights_only=True: tensors, numbers, strings and containers
+    only, so a checkpoint from elsewhere cannot run code. Raises HyperGSError naming the file."""
+    import pickle
+
+    import torch
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise HyperGSError(f"{path}: holds Python objects besides tensors and plain data; refused, as loading "
+                           "it could run code") from None
+    except (RuntimeError, EOFError, ValueError) as e:
+        raise HyperGSError(f"{path}: not a readable checkpoint ({reason(e)})") from None
+    if not isinstance(state, dict):
+        raise HyperGSError(f"{path}: not a training checkpoint")
+    return state
 
 
 def export_checkpoint(run, out, name: str = BUNDLED_NAME) -> dict:
     """Write the weights of `run`/checkpoint.pt into `out`; returns the training info recorded."""
-    import torch
 
     from ..model import ConvGS, build_model
     checkpoint_path = Path(run) / "checkpoint.pt"
     if not checkpoint_path.is_file():
         raise HyperGSError(f"{checkpoint_path}: no checkpoint")
-    state = torch.load(checkpoint_path, map_location="cpu", weights_only=True)
+    state = load_checkpoint(checkpoint_path)
     model = build_model(json.loads(state["config"]))
     if not isinstance(model, ConvGS):
         raise HyperGSError(f"{checkpoint_path}: a {type(model).__name__} (the paper's design); the runtime encodes "

@@ -35,6 +35,7 @@ from ..io.images import resize_exact
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
 from . import data
+from .export import load_checkpoint
 from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
 from .sources import make_batch
@@ -121,7 +122,7 @@ def run(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "checkpoint.pt"
-    resume = torch.load(checkpoint_path, map_location="cpu", weights_only=True) if checkpoint_path.exists() else None
+    resume = load_checkpoint(checkpoint_path) if checkpoint_path.exists() else None
     config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])
     if not resume and args.parametrization:
         config["parametrization"] = args.parametrization

@@ -1,0 +1,162 @@
+"""Writing files safely, for every writer (.hgs, .npz, USD, images, reports, weights).
+
+An output is written under a temporary name in its own folder and renamed onto its name
+(`os.replace`) only once it is complete: a failed, cancelled or interrupted write (disk full, Ctrl-C,
+SIGTERM) leaves the previous file as it was and nothing under the final name. Renaming replaces a
+symbolic link at the output's name instead of writing through it, so a link can never lead a write
+onto another file. `check_output` refuses, before any work starts, outputs that could not be written
+or would destroy an input: a wrong suffix, a missing or unwritable folder, a folder where a file is
+wanted, the same file as an input (also through links).
+"""
+from __future__ import annotations
+
+import os
+import secrets
+from pathlib import Path
+
+from ..errors import HyperGSError
+
+_pending: set[Path] = set()  # temporary files not yet committed or discarded
+
+
+def check_output(path, suffixes=(), inputs=()) -> Path:
+    """Raises HyperGSError unless `path` can be written as a new or replaced file: its suffix is one of
+    `suffixes` (any when empty), its folder exists and is writable, it is not a folder and not the same
+    file as any of `inputs`."""
+    path = _path(path)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise HyperGSError(f"{path}: the output must end in {', '.join(suffixes)}")
+    folder = path.parent
+    if not folder.is_dir():
+        raise HyperGSError(f"{path}: the folder {folder} does not exist")
+    if path.is_dir():
+        raise HyperGSError(f"{path}: is a folder, not a file")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise HyperGSError(f"{path}: the folder {folder} is not writable")
+    for source in inputs:
+        if same_file(path, source):
+            raise HyperGSError(f"{path}: is the input {source}; choose another output")
+    return path
+
+
+def check_output_folder(path, inputs=()) -> Path:
+    """Like check_output for a folder of outputs: it exists or its parent does (it is then created on
+    the first write), it is writable and it is not one of `inputs`."""
+    path = _path(path)
+    if path.exists() and not path.is_dir():
+        raise HyperGSError(f"{path}: is a file, not a folder")
+    folder = path if path.is_dir() else path.parent
+    if not folder.is_dir():
+        raise HyperGSError(f"{path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise HyperGSError(f"{path}: the folder {folder} is not writable")
+    for source in inputs:
+        if same_file(path, source):
+            raise HyperGSError(f"{path}: is the input {source}; choose another output")
+    return path
+
+
+def _path(path) -> Path:
+    if "\0" in str(path):
+        raise HyperGSError(f"{str(path)!r}: a file name cannot hold a NUL character")
+    return Path(path)
+
+
+def same_file(a, b) -> bool:
+    """True when a and b name one existing file or folder (following links)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+class AtomicOutput:
+    """The file `path`, written under a temporary name beside it (same suffix, so libraries that pick
+    a format by suffix work) and renamed into place by `commit`.
+
+        with AtomicOutput(path) as temp:      # a path: write it whole (np.savez, an image, USD)
+            write(temp)                       # committed at the end of the block, discarded on error
+
+        out = AtomicOutput(path)              # streamed: out.open() is the temporary file
+        ...; out.commit()  (or out.discard())
+
+    OSError while writing or renaming becomes HyperGSError naming `path` (disk full, read-only
+    folder). The block should only write: any OSError in it is reported as a write error."""
+
+    def __init__(self, path, inputs=()):
+        self.path = check_output(path, inputs=inputs)
+        self.file = None
+        for _ in range(100):
+            self.temp = self.path.with_name(f".{self.path.name}.{secrets.token_hex(4)}.part{self.path.suffix}")
+            try:
+                os.close(os.open(self.temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+                break
+            except FileExistsError:
+                continue
+            except OSError as e:
+                raise HyperGSError(f"{self.path}: cannot write ({e.strerror})") from None
+        _pending.add(self.temp)
+
+    def open(self):
+        """The temporary file, opened for writing (binary)."""
+        try:
+            self.file = open(self.temp, "wb")
+        except OSError as e:
+            self.discard()
+            raise HyperGSError(f"{self.path}: cannot write ({e.strerror})") from None
+        return self.file
+
+    def commit(self) -> None:
+        """Close the temporary file and rename it onto the output (raises HyperGSError on failure,
+        after removing it)."""
+        try:
+            if self.file is not None:
+                self.file.close()
+                self.file = None
+            os.replace(self.temp, self.path)
+        except OSError as e:
+            self.discard()
+            raise HyperGSError(f"{self.path}: cannot write ({e.strerror or e})") from None
+        _pending.discard(self.temp)
+
+    def discard(self) -> None:
+        """Remove the temporary file; the output stays as it was. Never raises for a failed close (a
+        full disk fails the flush too), so the error that caused the discard is the one reported."""
+        if self.file is not None:
+            try:
+                self.file.close()
+            except OSError:
+                pass
+            self.file = None
+        try:
+            self.temp.unlink()
+        except FileNotFoundError:
+            pass
+        _pending.discard(self.temp)
+
+    def __enter__(self) -> Path:
+        return self.temp
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.commit()
+            return
+        self.discard()
+        if issubclass(exc_type, OSError):
+            raise HyperGSError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+
+
+def discard_pending() -> None:
+    """Remove every temporary file not yet committed (the command line calls this on any exit)."""
+    for temp in list(_pending):
+        try:
+            temp.unlink()
+        except OSError:
+            pass
+        _pending.discard(temp)
+
+
+def write_bytes(path, data: bytes, inputs=()) -> None:
+    """Write a small file whole, atomically."""
+    with AtomicOutput(path, inputs) as temp:
+        temp.write_bytes(data)

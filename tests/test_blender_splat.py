@@ -1,6 +1,6 @@
 """The GPU splats (engine/splat.py) in the real bpy 5.0.1 wheel against the numpy rasterizer they replace:
 F12 and Ctrl-F12 through the engine's GPU path (bl_use_gpu_context; on a machine without a GPU, Mesa's
-software OpenGL through EGL) of two clips with hard Gaussians (needles, off-image, huge, invalid) at a
+software OpenGL through EGL) of two clips with hard Gaussians (needles, off-image, huge) at a
 non-square size, the windowed drawing of the viewport, and F12 in a Blender without a GPU context, which
 must take the numpy path (bpy 5.0.1 aborts the process when a bl_use_gpu_context engine renders there).
 
@@ -117,7 +117,7 @@ def run_session(zip_path, work, out_path):
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
     for k, (name, (canvas, n)) in enumerate(CLIPS.items()):
-        params = np.stack([hard_params(n, seed=10 * k + t) for t in range(FRAMES)])
+        params = np.stack([hard_params(n, seed=10 * k + t, invalid=False) for t in range(FRAMES)])  # files refuse NaN
         params[..., 5:8] *= 0.3  # a frame of mid-grey brightness, not a white-out
         save_npz(GaussianVideo(params, *canvas), work / f"{name}.npz")
         bpy.ops.hypergs.import_clip(filepath=str(work / f"{name}.npz"))

@@ -9,9 +9,9 @@ from hypergs_blender.render import render_params
 from hypergs_blender.splat import CHUNK, GAUSSIANS_PER_ROW, ROW_WIDTH, TEXELS, splat_rows, texture_rows
 
 
-def hard_params(n, seed=0):
+def hard_params(n, seed=0, invalid=True):
     """Anisotropic Gaussians on a canvas: some off the image, needles (aspect 300), tiny and huge ones,
-    negative colours, and a few invalid ones (zero or NaN scale)."""
+    negative colours, and (`invalid`) two invalid ones (zero or NaN scale)."""
     rng = np.random.default_rng(seed)
     p = np.empty((n, 8), np.float32)
     p[:, 0:2] = rng.uniform(-1.4, 1.4, (n, 2))
@@ -22,8 +22,9 @@ def hard_params(n, seed=0):
     p[8, 2:4] = [400, 300]  # larger than the image, centre off it
     p[8, 0:2] = [1.5, -1.2]
     p[9, 0:2] = [9.0, 0.0]  # far off
-    p[10, 2] = 0.0  # invalid: l11 = 0
-    p[11, 3] = np.nan
+    if invalid:
+        p[10, 2] = 0.0  # l11 = 0
+        p[11, 3] = np.nan
     return p
 
 

@@ -244,8 +244,8 @@ def test_two_16000_pixel_pngs_are_refused_before_decoding(tmp_path):
 
 # ---- 2. atomic writes ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("suffix,gaussians,file_limit", [(".npz", 4000, 8192), (".hgs", 50, 1024)])
-def test_a_failed_write_keeps_the_good_file(tmp_path, video, suffix, gaussians, file_limit):
+@pytest.mark.parametrize("suffix,density,file_limit", [(".npz", ("--cell", "4"), 8192), (".hgs", ("--gaussians", "48"), 1024)])
+def test_a_failed_write_keeps_the_good_file(tmp_path, video, suffix, density, file_limit):
     """Disk full / file-size limit while writing over a good clip: the good clip stays as it was,
     one line says why, no temporary file is left. (The small .hgs fails in the writer's close, whose
     clean-up used to fail again and hide the message behind a traceback.)"""
@@ -254,7 +254,7 @@ def test_a_failed_write_keeps_the_good_file(tmp_path, video, suffix, gaussians, 
     (save_npz if suffix == ".npz" else save_hgs)(small_clip(t=20, n=300), good)
     before = good.read_bytes()
     result = hypergs_process(tmp_path, "encode", video.name, "-o", good.name, "--encoder", "floor",
-                             "--gaussians", gaussians, limits=[(resource.RLIMIT_FSIZE, file_limit)])
+                             *density, limits=[(resource.RLIMIT_FSIZE, file_limit)])
     assert_one_line_error(result.returncode, result.stderr.splitlines(), "cannot write", "File too large")
     assert good.read_bytes() == before
     assert sorted(f.name for f in tmp_path.iterdir()) == sorted([video.name, good.name])
@@ -273,9 +273,9 @@ def test_writing_replaces_a_link_instead_of_writing_through_it(tmp_path, capsys,
     other.write_bytes(b"someone else's file")
     (tmp_path / "link.npz").symlink_to(other)
     assert hypergs(capsys, "encode", video, "-o", tmp_path / "link.npz", "--encoder", "floor",
-                   "--gaussians", "50")[0] == 0
+                   "--gaussians", "48")[0] == 0  # 8 x 6 cells on the 64 x 48 video
     assert other.read_bytes() == b"someone else's file"
-    assert not (tmp_path / "link.npz").is_symlink() and load_npz(tmp_path / "link.npz").num_gaussians == 50
+    assert not (tmp_path / "link.npz").is_symlink() and load_npz(tmp_path / "link.npz").num_gaussians == 48
 
 
 # ---- 3. tracebacks instead of one-line errors ------------------------------------------------------

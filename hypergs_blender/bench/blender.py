@@ -5,8 +5,9 @@ The Blender tests drive their sessions with the same helpers.
 
 Building (`build`, also `hypergs build-extension`):
 1. fetches the wheels that `blender_manifest.toml` lists (`wheels = [...]`) into wheels/ with
-   `pip download --no-deps --only-binary=:all: --platform ... --python-version ...`; wheels already
-   there are kept, so re-running costs nothing;
+   `pip download --no-deps --only-binary=:all: --platform ... --python-version ...`, each for the
+   platform and Python version its file name names; wheels already there are kept, so re-running
+   costs nothing;
 2. runs `blender_ext.py build` (from the installed `bpy` wheel, or $BLENDER_EXT) on the repository root;
 3. runs `blender_ext.py validate` on every zip it built.
 """
@@ -70,6 +71,15 @@ def wheel_tags(filename: str) -> tuple[str, str, str, str, str]:
     return parts[0], parts[1], parts[-3], parts[-2], parts[-1]
 
 
+def python_version(python_tag: str) -> str:
+    """The Python version a wheel's python tag names: "cp313" -> "3.13" (an abi3 wheel's tag is the
+    oldest version it serves)."""
+    digits = python_tag.removeprefix("cp").removeprefix("py")
+    if not digits.isdigit() or len(digits) < 2:
+        raise BuildError(f"cannot tell the Python version of the wheel tag {python_tag!r}")
+    return f"{digits[0]}.{digits[1:]}"
+
+
 def fetch_wheels(wheels: list[str], quiet: bool = False) -> None:
     """Download every listed wheel missing under the repository root (idempotent)."""
     for rel in wheels:
@@ -79,7 +89,7 @@ def fetch_wheels(wheels: list[str], quiet: bool = False) -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
         name, version, py, abi, plat = wheel_tags(target.name)
         cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-               "--platform", plat, "--python-version", "3.11", "--implementation", "cp",
+               "--platform", plat, "--python-version", python_version(py), "--implementation", "cp",
                "--abi", abi, "-d", str(target.parent), f"{name}=={version}"]
         if quiet:
             cmd.insert(4, "-q")

@@ -63,8 +63,13 @@ def write_points(mesh, points: dict) -> None:
 
 
 def new_clip_mesh(name: str, video: GaussianVideo):
+    points = video_to_points(video)  # a padded clip (see points_to_video) without its padding
     mesh = bpy.data.meshes.new(name)
-    write_points(mesh, video_to_points(video))  # a padded clip (see points_to_video) without its padding
+    try:
+        write_points(mesh, points)
+    except BaseException:  # no half-made mesh is left behind
+        bpy.data.meshes.remove(mesh)
+        raise
     return mesh
 
 

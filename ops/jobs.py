@@ -57,12 +57,14 @@ def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
 
 
 class EncodeJob:
-    """run_encode on a worker thread; `cancel()` makes its progress callback return False."""
+    """run_encode for each request in turn, on a worker thread; `cancel()` makes its progress callback
+    return False. All or nothing: the job has `results` for every request, or an `error`."""
 
-    def __init__(self, request: EncodeRequest):
-        self.request = request
-        self.done, self.total = 0, 0
-        self.result: EncodeResult | None = None
+    def __init__(self, requests: list[EncodeRequest]):
+        self.requests = list(requests)
+        self.index = 0  # the request being encoded
+        self.done, self.total = 0, 0  # its frames
+        self.results: list[EncodeResult] = []
         self.error: BaseException | None = None
         self._cancel = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hypergs-encode", daemon=True)
@@ -73,7 +75,9 @@ class EncodeJob:
 
     def _run(self):
         try:
-            self.result = run_encode(self.request, self._progress)
+            for self.index, request in enumerate(self.requests):
+                self.done = self.total = 0
+                self.results.append(run_encode(request, self._progress))
         except BaseException as e:  # handed to the main thread, which reports it
             self.error = e
 
@@ -91,14 +95,22 @@ class EncodeJob:
 
     @property
     def finished(self) -> bool:
-        return not self._thread.is_alive() and (self.result is not None or self.error is not None)
+        return not self._thread.is_alive() and (self.error is not None or len(self.results) == len(self.requests))
 
     def join(self, timeout=None):
         self._thread.join(timeout)
 
     @property
     def fraction(self) -> float:
-        return self.done / self.total if self.total else 0.0
+        part = self.done / self.total if self.total else 0.0
+        return (self.index + part) / max(1, len(self.requests))
+
+    def status(self) -> str:
+        """What the job does now, for the status bar."""
+        text = f"encoding frame {self.done} of {self.total}" if self.total else "starting"
+        if len(self.requests) > 1:
+            text += f" of clip {self.index + 1} of {len(self.requests)}"
+        return text
 
 
 def describe(error: BaseException) -> str:

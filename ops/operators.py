@@ -17,6 +17,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..com import linked
+from ..com.compat import all_strips, strip_range, strip_source_first
 from ..com.mesh import linked_file, read_clip_points
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
@@ -25,11 +26,12 @@ from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
 from . import scene as clip_scene
 from .jobs import EncodeJob, EncodeRequest, describe
-from .props import GAUSSIAN_COUNT, PATCH_GRID
+from .props import GAUSSIAN_COUNT, PATCH_GRID, draw_encode_options
 
 
 class _EncodeOperator:
-    """Mixin: subclasses define make_request(context) -> EncodeRequest and apply(context, result)."""
+    """Mixin: subclasses define make_requests(context) -> [EncodeRequest] and apply(context, results)
+    -> message; apply gets a result for every request (one job encodes them in turn, all or nothing)."""
 
     bl_options = {"REGISTER", "UNDO"}
 
@@ -40,11 +42,11 @@ class _EncodeOperator:
 
     def _begin(self, context):
         try:
-            request = self.make_request(context)
+            requests = self.make_requests(context)
         except HyperGSError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        job = EncodeJob(request)
+        job = EncodeJob(requests)
         if self.use_modal and context.window is not None and not bpy.app.background:
             self._job = job.start()
             wm = context.window_manager
@@ -66,8 +68,7 @@ class _EncodeOperator:
                 self._cleanup(context)
                 return self._end(context, job)
             context.window_manager.progress_update(int(100 * job.fraction))
-            if job.total:
-                self._status(context, f"HyperGS: encoding frame {job.done} of {job.total} (Esc to cancel)")
+            self._status(context, f"HyperGS: {job.status()} (Esc to cancel)")
             return {"RUNNING_MODAL"}
         if event.type in {"MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "TIMER_REPORT", "WINDOW_DEACTIVATE"}:
             return {"PASS_THROUGH"}
@@ -102,8 +103,8 @@ class _EncodeOperator:
             self.report({"ERROR"}, describe(job.error))
             return {"CANCELLED"}
         try:
-            message = self.apply(context, job.result)
-        except Exception as e:  # what apply() made is removed again (see scene.create_clip_object)
+            message = self.apply(context, job.results)
+        except Exception as e:  # what apply() made is removed again (scene.Undo)
             if not isinstance(e, HyperGSError):
                 traceback.print_exc()
             self.report({"ERROR"}, describe(e))
@@ -168,26 +169,31 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
 
     def invoke(self, context, event):
         self.use_modal = True
-        if self.filepath:  # dropped on the 3D Viewport, or invoked by a script with a file
-            return self.execute(context)
-        return ImportHelper.invoke(self, context, event)
+        if self.filepath:  # dropped on the 3D Viewport, or invoked by a script with a file: the options
+            return context.window_manager.invoke_props_dialog(self)
+        return ImportHelper.invoke(self, context, event)  # the file browser shows the options beside
+
+    def draw(self, context):
+        draw_encode_options(self.layout, self)
 
     def execute(self, context):
         return self._begin(context)
 
-    def make_request(self, context):
+    def make_requests(self, context):
         self._path = _check_file(self.filepath)
-        return EncodeRequest(self._path, self.gaussian_count, self.patch_grid)
+        return [EncodeRequest(self._path, self.gaussian_count, self.patch_grid)]
 
-    def apply(self, context, result):
+    def apply(self, context, results):
+        (result,) = results
         name = _clip_name(self._path)
         if image_sequence.is_image_sequence(self._path):  # image files have no frame rate: the scene's
             result.video.fps = _scene_fps(context.scene)
-        obj = clip_scene.create_clip_object(
-            context.view_layer.active_layer_collection.collection, name, result.video,
-            frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
-            encoder=result.encoder, source=self._path, source_start=0)
-        changed = clip_scene.prepare_scene(context.scene)
+        with clip_scene.Undo() as undo:
+            obj = clip_scene.create_clip_object(
+                context.view_layer.active_layer_collection.collection, name, result.video,
+                frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
+                encoder=result.encoder, source=self._path, source_start=0, undo=undo)
+            changed = clip_scene.prepare_scene(context.scene, undo)
         clip_scene.select_only(context, obj)
         return _summary(obj, result, changed)
 
@@ -205,84 +211,92 @@ class HYPERGS_FH_video(bpy.types.FileHandler):
         return context.area is not None and context.area.type == "VIEW_3D"
 
 
-def all_strips(editor):
-    """Every strip, meta strips' contents included (`strips_all` since 5.0, `sequences_all` before)."""
-    return editor.strips_all if hasattr(editor, "strips_all") else editor.sequences_all
-
-
 def _sequencer_scene(context):
     return getattr(context, "sequencer_scene", None) or context.scene
 
 
+def strips_to_convert(editor) -> list:
+    """The movie and image strips to convert: the selected ones, or the active one when none is
+    selected. Raises HyperGSError when there is none."""
+    chosen = [s for s in all_strips(editor) if s.select] if editor is not None else []
+    if not chosen and editor is not None and editor.active_strip is not None:
+        chosen = [editor.active_strip]
+    if not chosen:
+        raise HyperGSError("No strip selected: select movie or image-sequence strips in the Sequencer")
+    strips = [s for s in chosen if s.type in ("MOVIE", "IMAGE")]
+    if not strips:
+        names = ", ".join(f"'{s.name}'" for s in chosen[:3]) + (", ..." if len(chosen) > 3 else "")
+        raise HyperGSError(f"{names}: not a movie strip or an image sequence")
+    return strips
+
+
 class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
-    """Convert the active movie or image-sequence strip to 2D Gaussians (keeps its timing; mutes the strip)"""
+    """Convert the selected movie and image-sequence strips to 2D Gaussians. Each clip gets a scene
+    rendered by HyperGS, played by a scene strip with the original timing above the (muted) original"""
 
     bl_idname = "hypergs.convert_strip"
-    bl_label = "Convert Strip to Gaussians"
+    bl_label = "Convert to Gaussians"
 
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
     patch_grid: IntProperty(**PATCH_GRID)
 
     @classmethod
     def poll(cls, context):
-        return _sequencer_scene(context) is not None
+        return _sequencer_scene(context) is not None  # no strip to convert: execute says so
 
     def invoke(self, context, event):
         self.use_modal = True
-        return self.execute(context)
+        return context.window_manager.invoke_props_dialog(self)  # the options; OK runs execute()
+
+    def draw(self, context):
+        draw_encode_options(self.layout, self)
 
     def execute(self, context):
         return self._begin(context)
 
-    def _strip(self, context):
+    def make_requests(self, context):
         scene = _sequencer_scene(context)
-        editor = scene.sequence_editor
-        strip = editor.active_strip if editor is not None else None
-        if strip is None:
-            raise HyperGSError("No active strip: select a movie strip in the Sequencer")
-        if strip.type not in ("MOVIE", "IMAGE"):
-            raise HyperGSError(f"The active strip '{strip.name}' is not a movie strip or an image sequence")
-        return scene, strip
+        requests, self._targets = [], []
+        for strip in strips_to_convert(scene.sequence_editor):
+            library = getattr(strip.id_data, "library", None)
+            first = strip_source_first(strip)  # index of the strip's first shown frame in its source
+            start, end = strip_range(strip)
+            count = end - start
+            if strip.type == "IMAGE":
+                path, first = _image_strip_source(strip, library, first, count)
+            else:
+                path = _check_file(bpy.path.abspath(strip.filepath, library=library))
+            requests.append(EncodeRequest(path, self.gaussian_count, self.patch_grid, start=first, stop=first + count))
+            self._targets.append((strip.name, path))
+        self._scene = scene.name
+        return requests
 
-    def make_request(self, context):
-        scene, strip = self._strip(context)
-        library = getattr(strip.id_data, "library", None)
-        # Index of the strip's first shown frame in its source (trim and hold offsets), and how many.
-        first = max(0, int(round(strip.frame_final_start - strip.frame_start + strip.animation_offset_start)))
-        count = int(strip.frame_final_duration)
-        if strip.type == "IMAGE":
-            path, first = _image_strip_source(strip, library, first, count)
-        else:
-            path = _check_file(bpy.path.abspath(strip.filepath, library=library))
-        self._path = path
-        self._target = (scene.name, strip.name, int(strip.frame_final_start))
-        return EncodeRequest(path, self.gaussian_count, self.patch_grid, start=first, stop=first + count)
-
-    def apply(self, context, result):
-        scene_name, strip_name, frame_start = self._target
-        scene = bpy.data.scenes.get(scene_name)
-        strip = all_strips(scene.sequence_editor).get(strip_name) if scene and scene.sequence_editor else None
-        if strip is None:
-            raise HyperGSError(f"The strip '{strip_name}' is gone")
-        collection = (context.view_layer.active_layer_collection.collection if scene == context.scene
-                      else scene.collection)
-        if strip.type == "IMAGE":  # image files have no frame rate: the scene's
-            result.video.fps = _scene_fps(scene)
-        obj = clip_scene.create_clip_object(
-            collection, strip.name, result.video, frame_start=frame_start, speed=1.0,
-            psnr=result.psnr, seconds=result.seconds, encoder=result.encoder,
-            source=self._path, source_start=int(result.video.source["frames"][0]))
-        strip.mute = True  # the sequencer's output would replace the render otherwise
-        changed = ["strip muted"]
-        if scene.render.use_sequencer and not any(
-                not s.mute and s.type not in {"SOUND", "META"} for s in all_strips(scene.sequence_editor)):
-            # Blender 4.2 renders the sequencer (black) even when all its strips are muted.
-            scene.render.use_sequencer = False
-            changed.append("Output > Post Processing > Sequencer off (it would render the muted strip)")
-        changed += clip_scene.prepare_scene(scene)
-        if scene == context.scene:
-            clip_scene.select_only(context, obj)
-        return _summary(obj, result, changed)
+    def apply(self, context, results):
+        scene = bpy.data.scenes.get(self._scene)
+        editor = scene.sequence_editor if scene is not None else None
+        strips = [all_strips(editor).get(name) if editor is not None else None for name, _ in self._targets]
+        for strip, (name, _) in zip(strips, self._targets):
+            if strip is None:
+                raise HyperGSError(f"The strip '{name}' is gone")
+        made = []
+        with clip_scene.Undo() as undo:
+            for strip, (_, path), result in zip(strips, self._targets, results):
+                if strip.type == "IMAGE":  # image files have no frame rate: the scene's
+                    result.video.fps = _scene_fps(scene)
+                obj, scene_strip = clip_scene.add_strip_scene(
+                    scene, strip, result.video, undo=undo, psnr=result.psnr, seconds=result.seconds,
+                    encoder=result.encoder, source=path, source_start=int(result.video.source["frames"][0]))
+                made.append((obj, scene_strip, result))
+            changed = clip_scene.sequencer_preview_rendered(scene, undo)
+        for strip in strips:
+            strip.select = False
+        for _, scene_strip, _ in made:
+            scene_strip.select = True
+        editor.active_strip = made[-1][1]
+        text = "; ".join(_summary(obj, result, []).removeprefix("HyperGS: ") + f", played by the scene strip "
+                         f"'{scene_strip.name}' (channel {scene_strip.channel})"
+                         for obj, scene_strip, result in made)
+        return "HyperGS: " + text + ("; changed: " + ", ".join(changed) if changed else "")
 
 
 def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, int]:
@@ -323,14 +337,15 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
     def execute(self, context):
         return self._begin(context)
 
-    def make_request(self, context):
+    def make_requests(self, context):
         obj = context.object
         s = obj.hypergs
         self._name = obj.name
-        return EncodeRequest(_check_file(s.source), s.gaussian_count, s.patch_grid, start=s.source_start,
-                             stop=s.source_start + s.num_frames)
+        return [EncodeRequest(_check_file(s.source), s.gaussian_count, s.patch_grid, start=s.source_start,
+                              stop=s.source_start + s.num_frames)]
 
-    def apply(self, context, result):
+    def apply(self, context, results):
+        (result,) = results
         obj = bpy.data.objects.get(self._name)
         if obj is None or not obj.hypergs.is_clip:
             raise HyperGSError(f"The object '{self._name}' is gone")
@@ -459,11 +474,12 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
             video = linked.verify(path)  # header, index and every frame checked before anything is made
         else:
             video = load_clip(path)
-        obj = clip_scene.create_clip_object(
-            context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
-            video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
-            **_settings_from_source(video.source))
-        changed = clip_scene.prepare_scene(context.scene)
+        with clip_scene.Undo() as undo:
+            obj = clip_scene.create_clip_object(
+                context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
+                video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
+                undo=undo, **_settings_from_source(video.source))
+            changed = clip_scene.prepare_scene(context.scene, undo)
         clip_scene.select_only(context, obj)
         s = obj.hypergs
         text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "

@@ -8,6 +8,16 @@ PATCH_GRID = dict(name="Patch Grid", description="Encode the frame as N x N tile
                   default=1, min=1, max=5)
 
 
+def draw_encode_options(layout, options) -> None:
+    """The encode options of `options` (an operator, or a clip's settings for Re-encode): the import
+    file browser's side panel, the Sequencer's Convert dialog and the clip panel draw them alike."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    col = layout.column()
+    col.prop(options, "gaussian_count")
+    col.prop(options, "patch_grid")
+
+
 def _timing_changed(self, context):
     from . import scene
     scene.sync_timing(self.id_data)

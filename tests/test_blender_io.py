@@ -14,7 +14,8 @@ import pytest
 from conftest import run_blender_session, step
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import _import, attempt_unchanged, diff, read_mesh, snapshot  # noqa: E402
+from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, read_mesh, snapshot,  # noqa: E402
+                                types_namespace)
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
@@ -128,7 +129,8 @@ def test_import_video_reads_an_image_sequence(session):
 def test_image_strip_converts_keeping_its_timing(session):
     r = step(session, "image_strip")
     assert r["result"] == ["FINISHED"] and r["muted"]
-    assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 11  # trimmed by one at the start
+    assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 1  # the clip's scene counts from 1
+    assert r["scene_strip"] == ["SCENE", 11, 11 + SEQUENCE - 1]  # trimmed by one at the start
     assert r["source"].endswith("frame_0001.png") and r["source_start"] == 1  # re-encode reads the same
     assert r["max_error_vs_core"] < 5e-5  # its clip frame 0 is the sequence's second image
     assert r["still_image"]["raised"] and "single image" in r["still_image"]["message"]
@@ -432,44 +434,31 @@ def run_session(zip_path, work, out_path):
         strip = strips.new_image(name="seq", filepath=str(folder / "frame_0001.png"), channel=2, frame_start=10)
         for i in range(2, SEQUENCE + 1):
             strip.elements.append(f"frame_{i:04d}.png")
-        strip.frame_offset_start = 1  # trimmed: the strip starts at scene frame 11 with the second image
-        editor.active_strip = strip
+        compat = _import(addon, "com.compat")
+        if hasattr(strip, "left_handle_offset"):  # trimmed: the strip starts at scene frame 11 with the second image
+            strip.left_handle_offset = 1
+        else:
+            strip.frame_offset_start = 1
+
+        def select(chosen):
+            for s in compat.all_strips(editor):
+                s.select = s == chosen
+            editor.active_strip = chosen
+        select(strip)
         result = bpy.ops.hypergs.convert_strip(gaussian_count=250)
         obj = bpy.data.objects["seq"]
         s = obj.hypergs
+        scene_strip = editor.active_strip
         still = strips.new_image(name="still", filepath=str(folder / "frame_0001.png"), channel=3, frame_start=1)
-        editor.active_strip = still
+        select(still)
         still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip(gaussian_count=250))
         return dict(result=sorted(result), muted=strip.mute, num_frames=s.num_frames, frame_start=s.frame_start,
+                    scene_strip=[scene_strip.type, *compat.strip_range(scene_strip)],
                     source=s.source, source_start=s.source_start, max_error_vs_core=compare(obj, 1),
                     still_image=still_image)
 
     shutil.rmtree(work / "user", ignore_errors=True)
     return results
-
-
-class Recorder:
-    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
-
-    def __init__(self, calls=None):
-        self.__dict__["calls"] = [] if calls is None else calls
-
-    def __setattr__(self, name, value):  # alert, use_property_split, ...
-        pass
-
-    def __getattr__(self, name):
-        def call(*args, **kwargs):
-            if name in ("label", "operator"):
-                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
-            elif name == "prop":
-                self.calls.append((name, args[1], None))
-            return Recorder(self.calls)
-        return call
-
-
-def types_namespace(**kwargs):
-    from types import SimpleNamespace
-    return SimpleNamespace(**kwargs)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from ..com.mesh import linked_file
 from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
                              HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
                              HYPERGS_OT_reencode)
+from ..ops.props import draw_encode_options
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -52,8 +53,7 @@ class HYPERGS_PT_clip(bpy.types.Panel):
             return
         layout.operator(HYPERGS_OT_edit_frame.bl_idname, icon="EDITMODE_HLT")
         box = layout.box()
-        box.prop(s, "gaussian_count")
-        box.prop(s, "patch_grid")
+        draw_encode_options(box, s)
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
     @staticmethod
@@ -83,12 +83,14 @@ def menu_export(self, context):
 
 
 def menu_strip(self, context):
+    """Strip menu and the strip's context menu: convert the selected movie / image strips."""
     self.layout.separator()
-    self.layout.operator(HYPERGS_OT_convert_strip.bl_idname, icon="MOD_PARTICLES")
+    self.layout.operator_context = "INVOKE_DEFAULT"  # the options dialog
+    self.layout.operator(HYPERGS_OT_convert_strip.bl_idname, text="Convert to Gaussians...", icon="MOD_PARTICLES")
 
 
 MENUS = [("TOPBAR_MT_file_import", menu_import), ("TOPBAR_MT_file_export", menu_export),
-         ("SEQUENCER_MT_strip", menu_strip)]
+         ("SEQUENCER_MT_strip", menu_strip), ("SEQUENCER_MT_context_menu", menu_strip)]
 
 
 def register():

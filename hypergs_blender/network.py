@@ -45,11 +45,17 @@ class TorchEncoder:
 class OnnxEncoder:
     name = "network-onnx"
 
-    def __init__(self, onnx_path, card: dict):
+    def __init__(self, onnx_path, card: dict, providers: list[str] | None = None, threads: int = 0):
+        """providers: onnxruntime execution providers, best first (default: the CPU's); threads: the CPU
+        provider's intra-op threads (0: onnxruntime's default, one per core)."""
         import onnxruntime as ort
         options = ort.SessionOptions()
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
+        options.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(str(onnx_path), options,
+                                            providers=providers or ["CPUExecutionProvider"])
+        # What runs: onnxruntime leaves out a provider that cannot start here (a missing CUDA library).
+        self.provider = self.session.get_providers()[0]
         self.canvas, self.clip_frames = card["config"]["canvas"], card["config"]["clip_frames"]
 
     def predict(self, frames: np.ndarray, n: int) -> np.ndarray:
@@ -77,12 +83,14 @@ def load_model(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME):
 BACKENDS = ("auto", "torch", "onnx")
 
 
-def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None):
+def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None,
+                    providers: list[str] | None = None, threads: int = 0):
     """The encoder to use. kind: "network" (the trained network in `weights`, default the bundled one)
     or "floor" (the no-learning grid floor). backend for the network: "torch" (needs torch and the
     .safetensors weights), "onnx" (needs onnxruntime and the .onnx model), or "auto": torch where both
-    are there, else onnx. What cannot load raises HyperGSError saying why; nothing falls back to
-    another kind of encoder."""
+    are there, else onnx. providers, threads: onnxruntime's execution providers and CPU threads (see
+    OnnxEncoder). What cannot load raises HyperGSError saying why; nothing falls back to another kind
+    of encoder."""
     if kind == "floor":
         from .encode import FloorEncoder
         return FloorEncoder()
@@ -101,7 +109,7 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         onnx_path = directory / f"{BUNDLED_NAME}.onnx"
         if not onnx_path.is_file():
             raise HyperGSError(f"no ONNX model at {onnx_path}: run `hypergs export-onnx`")
-        return OnnxEncoder(onnx_path, read_card(directory))
+        return OnnxEncoder(onnx_path, read_card(directory), providers, threads)
     except HyperGSError:
         raise
     except Exception as e:  # a missing package or a broken weights file, said plainly

@@ -13,7 +13,7 @@ from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.metrics import psnr
 from ..hypergs_blender.render import render_params
-from .encoder import make_encoder
+from .encoder import Runtime, describe_encoder, make_encoder
 
 PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
 
@@ -32,14 +32,14 @@ class EncodeResult:
     video: GaussianVideo
     psnr: float
     seconds: float
-    encoder: str
+    encoder: str  # what encoded, and on which device (describe_encoder)
 
 
-def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
+def run_encode(request: EncodeRequest, runtime: Runtime = Runtime(), progress=None) -> EncodeResult:
     """Encode, measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
-    progress(done, total) -> False cancels (raises Cancelled)."""
+    runtime: where the network runs; progress(done, total) -> False cancels (raises Cancelled)."""
     started = time.perf_counter()
-    encoder = make_encoder()
+    encoder = make_encoder(runtime)
     n = split_count(request.gaussian_count, request.grid)
     plan = EncodePlan(request.path, encoder, n, request.grid, start=request.start, stop=request.stop)
     total = len(plan.indices)
@@ -53,15 +53,17 @@ def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
         done += len(frames)
     video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, (request.grid, request.grid),
                           dict(plan.source, encode_seconds=time.perf_counter() - started))
-    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started, encoder.name)
+    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started,
+                        describe_encoder(encoder, runtime))
 
 
 class EncodeJob:
     """run_encode for each request in turn, on a worker thread; `cancel()` makes its progress callback
     return False. All or nothing: the job has `results` for every request, or an `error`."""
 
-    def __init__(self, requests: list[EncodeRequest]):
+    def __init__(self, requests: list[EncodeRequest], runtime: Runtime = Runtime()):
         self.requests = list(requests)
+        self.runtime = runtime
         self.index = 0  # the request being encoded
         self.done, self.total = 0, 0  # its frames
         self.results: list[EncodeResult] = []
@@ -77,7 +79,7 @@ class EncodeJob:
         try:
             for self.index, request in enumerate(self.requests):
                 self.done = self.total = 0
-                self.results.append(run_encode(request, self._progress))
+                self.results.append(run_encode(request, self.runtime, self._progress))
         except BaseException as e:  # handed to the main thread, which reports it
             self.error = e
 

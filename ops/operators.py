@@ -24,6 +24,7 @@ from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io import image_sequence
 from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
+from . import preferences
 from . import scene as clip_scene
 from .jobs import EncodeJob, EncodeRequest, describe
 from .props import GAUSSIAN_COUNT, PATCH_GRID, draw_encode_options
@@ -46,7 +47,7 @@ class _EncodeOperator:
         except HyperGSError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        job = EncodeJob(requests)
+        job = EncodeJob(requests, preferences.runtime(context))
         if self.use_modal and context.window is not None and not bpy.app.background:
             self._job = job.start()
             wm = context.window_manager
@@ -116,7 +117,7 @@ class _EncodeOperator:
 def _summary(obj, result, changed) -> str:
     s = obj.hypergs
     text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians, "
-            f"PSNR {result.psnr:.2f} dB, {result.seconds:.1f} s")
+            f"PSNR {result.psnr:.2f} dB, {result.seconds:.1f} s with {result.encoder}")
     if changed:
         text += "; changed: " + ", ".join(changed)
     return text

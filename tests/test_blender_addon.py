@@ -64,6 +64,17 @@ def test_bundled_network_loads_without_torch_or_says_why(session):
         assert r["problem"].startswith("HyperGSError") and r["raised"] and r["unchanged"], r
 
 
+def test_preferences_choose_the_execution_provider_and_threads(session):
+    r = step(session, "providers")
+    assert r["defaults"] == ["AUTO", 0] and "CPUExecutionProvider" in r["available"]
+    # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
+    assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
+    assert r["policy"] == [["CUDAExecutionProvider", "CPUExecutionProvider"], ["CPUExecutionProvider"],
+                           ["CPUExecutionProvider"], ["CoreMLExecutionProvider", "CPUExecutionProvider"],
+                           ["DmlExecutionProvider", "CPUExecutionProvider"]]
+    assert r["preferences_drawn"]
+
+
 def test_cancelled_import_changes_nothing(session):
     r = step(session, "cancel")
     assert r["result"] == ["CANCELLED"]
@@ -89,6 +100,8 @@ def test_imported_clip_shows_one_frame_at_a_time(session):
     assert r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
     assert r["attributes"] == {"color": "FLOAT_COLOR", "frame": "INT", "rotation": "FLOAT", "scale": "FLOAT2"}
     assert r["psnr"] > 10 and abs(r["psnr"] - r["reference_psnr"]) < 1.0
+    # What ran, shown in the panel and the report.
+    assert r["encoder"] == ("floor" if os.environ.get("HYPERGS_ENCODER") == "floor" else "network-onnx on CPU (all cores)")
     assert r["display_points"] in (None, GAUSSIANS)  # a point cloud shows the frame in Solid mode
 
 
@@ -252,6 +265,32 @@ def run_session(zip_path, work, out_path):
             encoder_module._cache.clear()
         return dict(has_onnx=has_onnx, encoder=name, problem=error, raised=raised, unchanged=unchanged)
 
+    @record("providers")
+    def _():
+        encoder_module, prefs_module = _import(addon, "ops.encoder"), _import(addon, "ops.preferences")
+        prefs = bpy.context.preferences.addons[prefs_module.ADDON].preferences
+        defaults = [prefs.device, prefs.threads]
+        prefs.device, prefs.threads = "CUDAExecutionProvider", 1
+        runtime = prefs_module.runtime(bpy.context)
+        saved = os.environ.get("HYPERGS_ENCODER")
+        os.environ["HYPERGS_ENCODER"] = "bundled"
+        try:
+            encoder = encoder_module.make_encoder(runtime)
+            asked = dict(provider=encoder.provider, threads=encoder.session.get_session_options().intra_op_num_threads,
+                         described=encoder_module.describe_encoder(encoder, runtime))
+        finally:
+            os.environ["HYPERGS_ENCODER"] = saved or ""
+            prefs.device, prefs.threads = defaults
+            encoder_module._cache.clear()
+        cuda, dml, coreml, cpu = encoder_module.PROVIDERS
+        policy = [encoder_module.providers_for("AUTO", [cuda, cpu]), encoder_module.providers_for(dml, [cuda, cpu]),
+                  encoder_module.providers_for(cpu, [coreml, cpu]), encoder_module.providers_for("AUTO", [coreml, cpu]),
+                  encoder_module.providers_for(dml, [cuda, dml, cpu])]
+        layout = Recorder()
+        type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
+        return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
+                    policy=policy, preferences_drawn=[list(c) for c in layout.calls])
+
     @record("cancel")
     def _():
         plan = _import(addon, "hypergs_blender.encode").EncodePlan
@@ -315,7 +354,7 @@ def run_session(zip_path, work, out_path):
                     engine=scene.render.engine, view_transform=scene.view_settings.view_transform,
                     attributes={a.name: a.data_type for a in obj.data.attributes
                                 if a.name in ("scale", "rotation", "color", "frame")},
-                    psnr=s.psnr, reference_psnr=ref_psnr, seconds=s.encode_seconds,
+                    psnr=s.psnr, reference_psnr=ref_psnr, seconds=s.encode_seconds, encoder=s.encoder,
                     display_points=display_points(bpy, obj))
 
     obj = ctx["obj"]

@@ -18,7 +18,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..com import linked
 from ..com.compat import all_strips, strip_range, strip_source_first
-from ..com.mesh import linked_file, read_clip_points
+from ..com.mesh import clip_problem, linked_file, read_clip_points
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io import image_sequence
@@ -455,7 +455,7 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
     def execute(self, context):
         try:
             message = self._import(context)
-        except Exception as e:  # what it made is removed again (create_clip_object)
+        except Exception as e:  # what it made is removed again (scene.Undo)
             if not isinstance(e, HyperGSError):
                 traceback.print_exc()
             self.report({"ERROR"}, describe(e))
@@ -468,13 +468,19 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
         if not self.filepath:
             raise HyperGSError("No Gaussian video file given")
         path = bpy.path.abspath(self.filepath)
-        if self.link:
-            if os.path.splitext(path)[1].lower() != ".hgs":
-                raise HyperGSError(f"{os.path.basename(path)}: only .hgs files can be linked "
-                                   "(import .usd and .npz clips embedded)")
-            video = linked.verify(path)  # header, index and every frame checked before anything is made
-        else:
-            video = load_clip(path)
+        name = os.path.basename(path)
+        if self.link and os.path.splitext(path)[1].lower() != ".hgs":
+            raise HyperGSError(f"{name}: only .hgs files can be linked (import .usd and .npz clips embedded)")
+        try:  # everything is read and checked before anything is made
+            video = linked.verify(path) if self.link else load_clip(path)
+        except HyperGSError:
+            raise  # the readers' messages name the file and the reason
+        except Exception as e:  # still one line, naming the file
+            traceback.print_exc()
+            raise HyperGSError(f"{name}: cannot read it as a Gaussian video ({type(e).__name__}: {e})") from e
+        problem = clip_problem(video)
+        if problem:
+            raise HyperGSError(f"{name}: {problem}")
         with clip_scene.Undo() as undo:
             obj = clip_scene.create_clip_object(
                 context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],

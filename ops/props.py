@@ -1,6 +1,9 @@
-"""Per-object HyperGS settings (`Object.hypergs`): what the clip is, how it was encoded, its timing."""
+"""HyperGS settings: per object (`Object.hypergs`: what the clip is, how it was encoded, its timing) and
+per scene (`Scene.hypergs`: render settings)."""
 import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+
+from ..com.compat import path_options
 
 GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (more: sharper, slower)",
                       default=1000, min=250, max=3000)
@@ -24,8 +27,10 @@ def _timing_changed(self, context):
 
 
 def _linked_path_changed(self, context):
+    from ..com import paths
     from . import scene
-    scene.refresh_linked(self.id_data)
+    if not paths.rebasing():
+        scene.refresh_linked(self.id_data)
 
 
 class HyperGSClipSettings(bpy.types.PropertyGroup):
@@ -51,11 +56,21 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
     linked: BoolProperty(name="Linked", default=False,
                          description="The Gaussians are read from an external .hgs file at render time "
                                      "(the mesh only outlines the image plane)")
-    linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed,
-                                description="The .hgs file a linked clip's Gaussians are read from")
+    linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed, options=path_options(),
+                                description="The .hgs file a linked clip's Gaussians are read from "
+                                            "(// at the start: relative to the .blend file's folder)")
     # Settings for the next Re-encode.
     gaussian_count: IntProperty(**GAUSSIAN_COUNT)
     patch_grid: IntProperty(**PATCH_GRID)
 
 
-CLASSES = [HyperGSClipSettings]
+class HyperGSSceneSettings(bpy.types.PropertyGroup):
+    """Per-scene HyperGS render settings (`Scene.hypergs`; Properties > Render > HyperGS)."""
+    allow_missing_clips: BoolProperty(
+        name="Render Missing Clips Black", default=False,
+        description="When a linked clip's file is missing or damaged during an animation (Ctrl-F12) or "
+                    "command-line render, render it black with a warning instead of stopping the render "
+                    "(a single interactive F12 always goes on with a warning)")
+
+
+CLASSES = [HyperGSClipSettings, HyperGSSceneSettings]

@@ -19,6 +19,7 @@ import bpy
 from ..com import linked as linked_files
 from ..com.compat import set_modifier_input, strip_range, strip_siblings
 from ..com.mesh import linked_file, new_clip_mesh, new_linked_mesh, outline
+from ..com.paths import stored_path
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 
@@ -218,7 +219,7 @@ def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_sta
         obj.hypergs.speed = speed
         if linked_path:
             obj.hypergs.linked = True
-            obj.hypergs.linked_path = linked_path
+            obj.hypergs.linked_path = stored_path(linked_path)
         else:
             mod = add_frame_modifier(obj)
             if mod.node_group.name not in groups_before:
@@ -267,7 +268,7 @@ def link_clip(obj, path: str) -> None:
     if mod is not None:
         obj.modifiers.remove(mod)
     obj.hypergs.linked = True
-    obj.hypergs.linked_path = path  # refresh_linked copies the file's header into the settings
+    obj.hypergs.linked_path = stored_path(path)  # refresh_linked copies the file's header into the settings
 
 
 def refresh_linked(obj) -> None:

@@ -73,6 +73,24 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         box.operator(HYPERGS_OT_embed_clip.bl_idname, icon="IMPORT")
 
 
+class HYPERGS_PT_render(bpy.types.Panel):
+    """Properties > Render > HyperGS: the scene's render settings."""
+    bl_label = "HyperGS"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.render.engine == "HYPERGS"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.hypergs, "allow_missing_clips")
+
+
 def menu_import(self, context):
     self.layout.operator(HYPERGS_OT_import_video.bl_idname, text="Video as Gaussians (.mp4, .mov, ...)")
     self.layout.operator(HYPERGS_OT_import_clip.bl_idname, text="Gaussian Video (.hgs/.usd/.npz)")
@@ -103,4 +121,4 @@ def unregister():
         getattr(bpy.types, menu).remove(fn)
 
 
-CLASSES = [HYPERGS_PT_clip]
+CLASSES = [HYPERGS_PT_clip, HYPERGS_PT_render]

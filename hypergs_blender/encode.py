@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -19,6 +20,59 @@ from .io.images import resize_exact
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
 
+# ----------------------------------------------------------------------------------------------------
+# STAND-IN for the lead's density API (issue 11), so the Blender glue can be written against it on this
+# branch: QUALITY, Layout, plan_layout and the encoders' `stride` as the lead's branch defines them.
+# Drop this block (and the `stride` lines in FloorEncoder and network.py) in favour of the lead's.
+MAX_CELL = 32.0  # source pixels per cell side
+QUALITY = {  # cell size in source pixels and refine steps of each quality preset
+    "draft": dict(cell=8.0, refine=0),
+    "standard": dict(cell=6.0, refine=0),
+    "high": dict(cell=4.0, refine=30),
+}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the Gaussians of a width x height frame go: cols x rows cells, one Gaussian each."""
+    width: int
+    height: int
+    cols: int
+    rows: int
+    stride: int
+    note: str = ""  # why the request was changed (clamped to the trained range), for the user
+
+    @property
+    def count(self) -> int:
+        return self.cols * self.rows
+
+    @property
+    def cell(self) -> float:
+        """Mean cell side in source pixels."""
+        return math.sqrt(self.width * self.height / self.count)
+
+
+def plan_layout(width: int, height: int, stride: int, gaussians: int | None = None,
+                cell: float | None = None) -> Layout:
+    """The layout of a width x height frame for about `gaussians` Gaussians, or cells of `cell` source
+    pixels (exactly one of the two), cells kept between `stride` and MAX_CELL source pixels."""
+    if (gaussians is None) == (cell is None):
+        raise HyperGSError("give a Gaussian count or a cell size, not both")
+    if gaussians is not None and gaussians < 1:
+        raise HyperGSError(f"the Gaussian count must be at least 1, got {gaussians}")
+    if cell is not None and not cell > 0:
+        raise HyperGSError(f"the cell size must be positive, got {cell}")
+    wanted = math.sqrt(width * height / gaussians) if gaussians is not None else float(cell)
+    used = min(max(wanted, float(stride)), MAX_CELL)
+    cols, rows = max(1, round(width / used)), max(1, round(height / used))
+    note = ""
+    if used != wanted:
+        note = (f"{gaussians} Gaussians" if gaussians is not None else f"cells of {cell:g} px") + \
+            f" on {width}x{height} is outside the trained range: using {cols * rows} ({cols}x{rows} cells)"
+    return Layout(width, height, cols, rows, stride, note)
+# END OF STAND-IN
+# ----------------------------------------------------------------------------------------------------
+
 
 class Cancelled(HyperGSError):
     """The user cancelled an encode; nothing was written."""
@@ -29,6 +83,7 @@ class FloorEncoder:
     scaled so the overlapping kernels sum to the image. No learning."""
 
     name = "floor"
+    stride = 4  # STAND-IN (see above)
 
     def __init__(self, canvas: int = 128, clip_frames: int = 4, sigma_per_spacing: float = 0.6):
         self.canvas, self.clip_frames, self.sigma_per_spacing = canvas, clip_frames, sigma_per_spacing

@@ -26,6 +26,7 @@ def anchors_and_cell(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 class TorchEncoder:
     name = "network-torch"
+    stride = 4  # STAND-IN for the lead's network (see encode.py)
 
     def __init__(self, model, device="cpu"):
         import torch
@@ -44,6 +45,7 @@ class TorchEncoder:
 
 class OnnxEncoder:
     name = "network-onnx"
+    stride = 4  # STAND-IN for the lead's network (see encode.py)
 
     def __init__(self, onnx_path, card: dict, providers: list[str] | None = None, threads: int = 0):
         """providers: onnxruntime execution providers, best first (default: the CPU's); threads: the CPU

@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hypergs_blender.encode import EncodePlan, split_count
+from ..hypergs_blender.encode import EncodePlan, plan_layout
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
+from ..hypergs_blender.io.frames import probe
 from ..hypergs_blender.metrics import psnr
 from ..hypergs_blender.render import render_params
 from .encoder import Runtime, describe_encoder, make_encoder
@@ -21,8 +22,9 @@ PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measu
 @dataclass
 class EncodeRequest:
     path: str
-    gaussian_count: int
-    grid: int
+    gaussians: int | None  # Gaussians per frame, or None: one per cell x cell source pixels
+    cell: float | None
+    refine: int = 0  # refine steps after the network (0: none)
     start: int = 0
     stop: int | None = None
 
@@ -40,18 +42,21 @@ def run_encode(request: EncodeRequest, runtime: Runtime = Runtime(), progress=No
     runtime: where the network runs; progress(done, total) -> False cancels (raises Cancelled)."""
     started = time.perf_counter()
     encoder = make_encoder(runtime)
-    n = split_count(request.gaussian_count, request.grid)
-    plan = EncodePlan(request.path, encoder, n, request.grid, start=request.start, stop=request.stop)
+    # (With the lead's density API this is EncodePlan(request.path, encoder, request.gaussians, request.cell,
+    # start=..., stop=...), and the video's grid below plan.grid.)
+    info = probe(request.path)
+    layout = plan_layout(info.width, info.height, encoder.stride, request.gaussians, request.cell)
+    plan = EncodePlan(request.path, encoder, layout.count, 1, start=request.start, stop=request.stop)
     total = len(plan.indices)
     measured = set(np.round(np.linspace(0, total - 1, min(PSNR_FRAMES, total))).astype(int).tolist())
     chunks, values, done = [], [], 0
-    for frames, params in plan.chunks(progress):
+    for frames, params in plan.chunks(progress, refine=request.refine):
         for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
             image = render_params(params[i], plan.width, plan.height, plan.width, plan.height)
             values.append(float(psnr(image[None], frames[i][None] / np.float32(255))[0]))
         chunks.append(params)
         done += len(frames)
-    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, (request.grid, request.grid),
+    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, (1, 1),
                           dict(plan.source, encode_seconds=time.perf_counter() - started))
     return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started,
                         describe_encoder(encoder, runtime))

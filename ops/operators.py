@@ -26,8 +26,9 @@ from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
 from . import preferences
 from . import scene as clip_scene
-from .jobs import EncodeJob, EncodeRequest, describe
-from .props import GAUSSIAN_COUNT, PATCH_GRID, draw_encode_options
+from .jobs import EncodeJob, describe
+from . import quality
+from .quality import EncodeOptions, Source
 
 
 class _EncodeOperator:
@@ -154,7 +155,7 @@ def _scene_fps(scene) -> float:
     return scene.render.fps / scene.render.fps_base
 
 
-class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper):
+class HYPERGS_OT_import_video(_EncodeOperator, EncodeOptions, bpy.types.Operator, ImportHelper):
     """Encode a video or an image sequence (one of its files, or a pattern such as shot_####.png)
     as 2D Gaussians: one object whose points follow the scene frame"""
 
@@ -165,8 +166,10 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
     filename_ext = ".mp4"
     filter_glob: StringProperty(default=";".join("*" + e for e in VIDEO_EXTENSIONS + IMAGE_EXTENSIONS),
                                 options={"HIDDEN"})
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
+    first_frame: IntProperty(name="First Frame", default=1, min=1,
+                             description="The video's first frame to encode (1: its first)")
+    last_frame: IntProperty(name="Last Frame", default=0, min=0,
+                            description="The video's last frame to encode (0: its last)")
 
     def invoke(self, context, event):
         self.use_modal = True
@@ -175,14 +178,24 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
         return ImportHelper.invoke(self, context, event)  # the file browser shows the options beside
 
     def draw(self, context):
-        draw_encode_options(self.layout, self)
+        quality.draw(self.layout, self, lambda: [self._source()], preferences.runtime(context))
+        col = self.layout.column(align=True)
+        col.prop(self, "first_frame")
+        col.prop(self, "last_frame")
 
     def execute(self, context):
         return self._begin(context)
 
+    def _source(self) -> Source:
+        path = _check_file(self.filepath)
+        if self.last_frame and self.last_frame < self.first_frame:
+            raise HyperGSError(f"Last Frame {self.last_frame} comes before First Frame {self.first_frame}")
+        return Source(os.path.basename(path), path, self.first_frame - 1, self.last_frame or None)
+
     def make_requests(self, context):
-        self._path = _check_file(self.filepath)
-        return [EncodeRequest(self._path, self.gaussian_count, self.patch_grid)]
+        source = self._source()
+        self._path = source.path
+        return [quality.request(source, quality.settings(self))]
 
     def apply(self, context, results):
         (result,) = results
@@ -193,8 +206,10 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
             obj = clip_scene.create_clip_object(
                 context.view_layer.active_layer_collection.collection, name, result.video,
                 frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
-                encoder=result.encoder, source=self._path, source_start=0, undo=undo)
+                encoder=result.encoder, source=self._path, source_start=int(result.video.source["frames"][0]),
+                undo=undo)
             changed = clip_scene.prepare_scene(context.scene, undo)
+        quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
         clip_scene.select_only(context, obj)
         return _summary(obj, result, changed)
 
@@ -231,15 +246,12 @@ def strips_to_convert(editor) -> list:
     return strips
 
 
-class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
+class HYPERGS_OT_convert_strip(_EncodeOperator, EncodeOptions, bpy.types.Operator):
     """Convert the selected movie and image-sequence strips to 2D Gaussians. Each clip gets a scene
     rendered by HyperGS, played by a scene strip with the original timing above the (muted) original"""
 
     bl_idname = "hypergs.convert_strip"
     bl_label = "Convert to Gaussians"
-
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
 
     @classmethod
     def poll(cls, context):
@@ -250,27 +262,20 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
         return context.window_manager.invoke_props_dialog(self)  # the options; OK runs execute()
 
     def draw(self, context):
-        draw_encode_options(self.layout, self)
+        editor = _sequencer_scene(context).sequence_editor
+        quality.draw(self.layout, self, lambda: [strip_source(s) for s in strips_to_convert(editor)],
+                     preferences.runtime(context))
 
     def execute(self, context):
         return self._begin(context)
 
     def make_requests(self, context):
         scene = _sequencer_scene(context)
-        requests, self._targets = [], []
-        for strip in strips_to_convert(scene.sequence_editor):
-            library = getattr(strip.id_data, "library", None)
-            first = strip_source_first(strip)  # index of the strip's first shown frame in its source
-            start, end = strip_range(strip)
-            count = end - start
-            if strip.type == "IMAGE":
-                path, first = _image_strip_source(strip, library, first, count)
-            else:
-                path = _check_file(bpy.path.abspath(strip.filepath, library=library))
-            requests.append(EncodeRequest(path, self.gaussian_count, self.patch_grid, start=first, stop=first + count))
-            self._targets.append((strip.name, path))
+        sources = [strip_source(strip) for strip in strips_to_convert(scene.sequence_editor)]
+        chosen = quality.settings(self)
+        self._targets = [(source.name, source.path) for source in sources]
         self._scene = scene.name
-        return requests
+        return [quality.request(source, chosen) for source in sources]
 
     def apply(self, context, results):
         scene = bpy.data.scenes.get(self._scene)
@@ -287,6 +292,7 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
                 obj, scene_strip = clip_scene.add_strip_scene(
                     scene, strip, result.video, undo=undo, psnr=result.psnr, seconds=result.seconds,
                     encoder=result.encoder, source=path, source_start=int(result.video.source["frames"][0]))
+                quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
                 made.append((obj, scene_strip, result))
             changed = clip_scene.sequencer_preview_rendered(scene, undo)
         for strip in strips:
@@ -298,6 +304,20 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
                          f"'{scene_strip.name}' (channel {scene_strip.channel})"
                          for obj, scene_strip, result in made)
         return "HyperGS: " + text + ("; changed: " + ", ".join(changed) if changed else "")
+
+
+def strip_source(strip) -> Source:
+    """What a movie or image strip shows: its source's frames from the strip's first shown one on, as
+    many as the strip is long. Raises HyperGSError (a missing file, images that are not a sequence)."""
+    library = getattr(strip.id_data, "library", None)
+    first = strip_source_first(strip)  # index of the strip's first shown frame in its source
+    start, end = strip_range(strip)
+    count = end - start
+    if strip.type == "IMAGE":
+        path, first = _image_strip_source(strip, library, first, count)
+    else:
+        path = _check_file(bpy.path.abspath(strip.filepath, library=library))
+    return Source(strip.name, path, first, first + count)
 
 
 def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, int]:
@@ -320,7 +340,7 @@ def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, in
 
 
 class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
-    """Encode the clip's source again with the panel's Gaussian count and patch grid (replaces its points)"""
+    """Encode the clip's source again with the panel's quality (replaces its points)"""
 
     bl_idname = "hypergs.reencode"
     bl_label = "Re-encode"
@@ -342,8 +362,7 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
         obj = context.object
         s = obj.hypergs
         self._name = obj.name
-        return [EncodeRequest(_check_file(s.source), s.gaussian_count, s.patch_grid, start=s.source_start,
-                              stop=s.source_start + s.num_frames)]
+        return [quality.request(reencode_source(obj), quality.settings(s))]
 
     def apply(self, context, results):
         (result,) = results
@@ -356,6 +375,12 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
                                      encoder=result.encoder, source=obj.hypergs.source,
                                      source_start=obj.hypergs.source_start)
         return _summary(obj, result, [])
+
+
+def reencode_source(obj) -> Source:
+    """The frames a clip was encoded from (what Re-encode encodes again)."""
+    s = obj.hypergs
+    return Source(obj.name, _check_file(s.source), s.source_start, s.source_start + s.num_frames)
 
 
 def clip_frame(obj, scene_frame: int) -> int:

@@ -4,22 +4,7 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..com.compat import path_options
-
-GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (more: sharper, slower)",
-                      default=1000, min=250, max=3000)
-PATCH_GRID = dict(name="Patch Grid", description="Encode the frame as N x N tiles (more: finer detail)",
-                  default=1, min=1, max=5)
-
-
-def draw_encode_options(layout, options) -> None:
-    """The encode options of `options` (an operator, or a clip's settings for Re-encode): the import
-    file browser's side panel, the Sequencer's Convert dialog and the clip panel draw them alike."""
-    layout.use_property_split = True
-    layout.use_property_decorate = False
-    col = layout.column()
-    col.prop(options, "gaussian_count")
-    col.prop(options, "patch_grid")
-
+from .quality import EncodeOptions
 
 def _timing_changed(self, context):
     from . import scene
@@ -33,7 +18,8 @@ def _linked_path_changed(self, context):
         scene.refresh_linked(self.id_data)
 
 
-class HyperGSClipSettings(bpy.types.PropertyGroup):
+class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
+    """A clip's settings; its encode options (EncodeOptions) are those of the next Re-encode."""
     is_clip: BoolProperty(name="HyperGS Clip", default=False)
     source: StringProperty(name="Source", subtype="FILE_PATH", description="The video the clip was encoded from")
     source_start: IntProperty(name="First Source Frame", default=0, min=0,
@@ -59,9 +45,6 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
     linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed, options=path_options(),
                                 description="The .hgs file a linked clip's Gaussians are read from "
                                             "(// at the start: relative to the .blend file's folder)")
-    # Settings for the next Re-encode.
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    patch_grid: IntProperty(**PATCH_GRID)
 
 
 class HyperGSSceneSettings(bpy.types.PropertyGroup):

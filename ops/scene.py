@@ -157,8 +157,6 @@ def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, en
     s.num_frames = video.num_frames
     s.gaussians_per_frame = video.num_gaussians
     s.grid = video.grid[0]
-    s.gaussian_count = video.num_gaussians  # clamped to the property's range
-    s.patch_grid = video.grid[0]
     s.psnr = psnr
     s.encoder = encoder
     s.encode_seconds = seconds

@@ -15,12 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import make_pan_clip, run_blender_session, step
+from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP_NAME = "pan"  # the session's movie: a 432 x 240, 70-frame pan that conftest.make_pan_clip writes
 # The encoder the session converts with: the bundled network (HYPERGS_ENCODER=floor for the no-learning floor).
 ENCODER = "bundled"
-GAUSSIANS = 1000
+REQUESTED = 1000  # Gaussians per frame asked for (Quality: Custom) ...
+GAUSSIANS = plan_layout(432, 240, FloorEncoder.stride, gaussians=REQUESTED).count  # ... what that gives at 432 x 240
+REENCODED = plan_layout(432, 240, FloorEncoder.stride, gaussians=500).count
+SAMPLE_DRAFT = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY["draft"]["cell"]).count
 RENDER_FRAMES = (1, 35, 70)  # scene frames; the clip starts at frame 1, so source index = frame - 1
 SIZES = ((256, 256), (864, 480))
 PSNR_MARGIN = 0.3  # dB the F12 render may lose to the core's own encode -> render (8-bit PNG, dither)
@@ -75,6 +79,17 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     assert r["preferences_drawn"]
 
 
+def test_import_dialog_gaussians_follow_the_resolution(session):
+    r = step(session, "import_dialog")
+    standard = QUALITY["standard"]["cell"]
+    for name, (w, h) in (("pan", (432, 240)), ("sample", (256, 144))):
+        count = plan_layout(w, h, FloorEncoder.stride, cell=standard).count
+        assert any(line.startswith(f"{count:,} Gaussians per frame") and f"at {w} x {h}" in line
+                   for line in r[name]["labels"]), r[name]
+    assert any(line.startswith("30 frames") for line in r["sample"]["labels"])  # frames 11-40
+    assert r["reversed_range"] == ["Last Frame 5 comes before First Frame 10"]
+
+
 def test_cancelled_import_changes_nothing(session):
     r = step(session, "cancel")
     assert r["result"] == ["CANCELLED"]
@@ -85,10 +100,12 @@ def test_cancelled_import_changes_nothing(session):
 def test_import_video(session):
     r = step(session, "import_video")
     assert r["result"] == ["FINISHED"]
-    assert (r["num_frames"], r["gaussians_per_frame"], r["grid"]) == (60, 500, 2)
+    # Quality Draft, source frames 11-40: the Gaussians per frame follow the video's 256 x 144.
+    assert (r["num_frames"], r["source_start"], r["gaussians_per_frame"]) == (30, 10, SAMPLE_DRAFT)
+    assert r["quality"] == "DRAFT"  # the clip's Re-encode starts from the options used
     assert r["frame_start"] == r["scene_frame_start"] and r["active"] == "sample"
     assert r["camera"] == "HyperGS Camera"  # F12 needs one; the scene had none
-    assert r["display_points"] in (None, 500)
+    assert r["display_points"] in (None, SAMPLE_DRAFT)
 
 
 def test_imported_clip_shows_one_frame_at_a_time(session):
@@ -160,8 +177,8 @@ def test_edit_current_frame_shows_only_that_frame(session):
 def test_reencode_replaces_points_and_keeps_modifiers(session):
     r = step(session, "reencode")
     assert r["result"] == ["FINISHED"]
-    assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 500, 500, 2)
-    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 500)
+    assert (r["vertices"], r["gaussians_per_frame"]) == (70 * REENCODED, REENCODED)
+    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, REENCODED)
     assert r["psnr"] != r["psnr_before"]
     assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
 
@@ -291,6 +308,21 @@ def run_session(zip_path, work, out_path):
         return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
                     policy=policy, preferences_drawn=[list(c) for c in layout.calls])
 
+    @record("import_dialog")
+    def _():
+        op = bpy.types.HYPERGS_OT_import_video
+        out = {}
+        for name, path, frames in (("pan", CLIP, {}), ("sample", job.SAMPLE, dict(first_frame=11, last_frame=40)),
+                                   ("reversed", job.SAMPLE, dict(first_frame=10, last_frame=5))):
+            layout = Recorder()
+            options = dict(operator_defaults(bpy, op), filepath=str(path), **frames)
+            namespace = types_namespace(layout=layout, **options)
+            namespace._source = lambda ns=namespace: op._source(ns)
+            op.draw(namespace, bpy.context)
+            out[name] = dict(labels=[c[1] for c in layout.calls if c[0] == "label"])
+        out["reversed_range"] = [c for c in out.pop("reversed")["labels"] if "comes before" in c]
+        return out
+
     @record("cancel")
     def _():
         plan = _import(addon, "hypergs_blender.encode").EncodePlan
@@ -312,7 +344,7 @@ def run_session(zip_path, work, out_path):
             plan.chunks = original
         after = snapshot(bpy)
         jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, 1)]).start()
+        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, None)]).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
@@ -322,24 +354,25 @@ def run_session(zip_path, work, out_path):
     def _():
         for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
             bpy.data.objects.remove(o)
-        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), gaussian_count=500, patch_grid=2)
+        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
         obj = bpy.data.objects["sample"]
         s = obj.hypergs
         out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
-                   grid=s.grid, frame_start=s.frame_start, scene_frame_start=scene.frame_start,
+                   source_start=s.source_start, quality=s.quality, frame_start=s.frame_start,
+                   scene_frame_start=scene.frame_start,
                    camera=scene.camera.name if scene.camera else None,
                    active=bpy.context.view_layer.objects.active.name,
                    display_points=display_points(bpy, obj))
         bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    reference = encode_video(str(CLIP), encoder, GAUSSIANS, 1)
+    reference = encode_video(str(CLIP), encoder, GAUSSIANS, 1)  # (the same layout: one tile)
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("clip")
     def _():
         scene.frame_start = 1
-        result = bpy.ops.hypergs.import_video(filepath=str(CLIP), gaussian_count=GAUSSIANS)
+        result = bpy.ops.hypergs.import_video(filepath=str(CLIP), quality="CUSTOM", gaussian_count=REQUESTED)
         obj = bpy.data.objects[CLIP_NAME]
         ctx["obj"] = obj
         s = obj.hypergs
@@ -520,11 +553,11 @@ def run_session(zip_path, work, out_path):
     def _():
         again = ctx["obj"]
         psnr_before = again.hypergs.psnr
-        again.hypergs.gaussian_count, again.hypergs.patch_grid = 500, 2
+        again.hypergs.quality, again.hypergs.gaussian_count = "CUSTOM", 500
         result = bpy.ops.hypergs.reencode()
         s = again.hypergs
         return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
-                    grid=s.grid, psnr_before=psnr_before, psnr=s.psnr,
+                    psnr_before=psnr_before, psnr=s.psnr,
                     modifiers=[m.name for m in again.modifiers], display_points=display_points(bpy, again),
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
@@ -665,7 +698,9 @@ def types_namespace(**kwargs):
 
 def operator_defaults(bpy, operator_class) -> dict:
     """{property: default} of an operator class (what its dialog starts from)."""
-    return {p.identifier: p.default for p in operator_class.bl_rna.properties
+    module, name = operator_class.bl_idname.split(".")
+    properties = getattr(getattr(bpy.ops, module), name).get_rna_type().properties
+    return {p.identifier: p.default for p in properties
             if p.identifier != "rna_type" and hasattr(p, "default") and not getattr(p, "is_array", False)}
 
 

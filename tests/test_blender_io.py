@@ -526,7 +526,9 @@ def run_session(zip_path, work, out_path):
         rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
         write_image(folder / f"frame_{i + 1:04d}.png", rgb)
     (folder / "notes.txt").write_text("not a frame")
-    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250, 1)
+    from hypergs_blender.encode import plan_layout
+    count = plan_layout(64, 48, encoder.stride, gaussians=250).count
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, count, 1)
 
     def compare(obj, first):
         p, _ = mesh_params(obj)
@@ -537,7 +539,7 @@ def run_session(zip_path, work, out_path):
     def _():
         out = {}
         for case, path in (("file", folder / "frame_0003.png"), ("pattern", folder / "frame_####.png")):
-            result = bpy.ops.hypergs.import_video(filepath=str(path), gaussian_count=250)
+            result = bpy.ops.hypergs.import_video(filepath=str(path), quality="CUSTOM", gaussian_count=250)
             obj = bpy.context.view_layer.objects.active
             out[case] = dict(result=sorted(result), name=obj.name.split(".")[0], num_frames=obj.hypergs.num_frames,
                              fps=obj.hypergs.fps, max_error_vs_core=compare(obj, 0))
@@ -562,13 +564,13 @@ def run_session(zip_path, work, out_path):
                 s.select = s == chosen
             editor.active_strip = chosen
         select(strip)
-        result = bpy.ops.hypergs.convert_strip(gaussian_count=250)
+        result = bpy.ops.hypergs.convert_strip(quality="CUSTOM", gaussian_count=250)
         obj = bpy.data.objects["seq"]
         s = obj.hypergs
         scene_strip = editor.active_strip
         still = strips.new_image(name="still", filepath=str(folder / "frame_0001.png"), channel=3, frame_start=1)
         select(still)
-        still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip(gaussian_count=250))
+        still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip())
         return dict(result=sorted(result), muted=strip.mute, num_frames=s.num_frames, frame_start=s.frame_start,
                     scene_strip=[scene_strip.type, *compat.strip_range(scene_strip)],
                     source=s.source, source_start=s.source_start, max_error_vs_core=compare(obj, 1),

@@ -12,13 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_blender_session, step
+from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, operator_defaults,  # noqa: E402
                                 snapshot, types_namespace)
 
 ENCODER = "floor"  # fast; the matrix (tools/blender_matrix.py) runs the Sequencer with the network
-GAUSSIANS = 1000
+GAUSSIANS = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY["draft"]["cell"]).count  # Draft, the sample
 # The sample (256 x 144, 60 frames) as three strips: timeline [first, end) showing source frames from
 # `source` on. "a" starts where its content does; "b" is trimmed at both ends; "c" stays unselected.
 STRIPS = {"a": dict(content=1, first=1, end=13, source=0, channel=1),
@@ -43,7 +44,25 @@ def test_menus_offer_the_conversion_with_a_dialog(session):
     assert r["strip_menu"] and r["context_menu"]
     assert r["drawn"] == [["operator", "Convert to Gaussians...", "MOD_PARTICLES"]]
     assert r["operator_context"] == "INVOKE_DEFAULT"  # invoke shows the options dialog
-    assert r["dialog"], "the dialog draws the encode options"
+
+
+@pytest.mark.parametrize("preset", ["DRAFT", "STANDARD", "HIGH"])
+def test_dialog_shows_the_gaussians_per_frame_and_an_estimate(session, preset):
+    drawn = step(session, "menus")["dialog"][preset]
+    labels = [c[1] for c in drawn if c[0] == "label"]
+    count = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY[preset.lower()]["cell"]).count
+    for name in ("a", "b"):  # each selected strip, at its source's resolution
+        assert any(line.startswith(f"{name}: {count:,} Gaussians per frame") and "at 256 x 144" in line
+                   for line in labels), labels
+    assert any(line.startswith("22 frames") and "MB in the .blend" in line for line in labels), labels
+    assert ["prop", "quality", None] in drawn and ["prop", "cell_size", None] not in drawn
+    # High refines; this Blender's Python has no PyTorch: the dialog says so before anything runs.
+    assert any("refining needs PyTorch" in line for line in labels) == (QUALITY[preset.lower()]["refine"] > 0)
+
+
+def test_dialog_custom_shows_the_custom_options(session):
+    drawn = step(session, "menus")["dialog"]["CUSTOM"]
+    assert all(["prop", name, None] in drawn for name in ("cell_size", "gaussian_count", "refine_steps"))
 
 
 @pytest.mark.parametrize("case", ["missing_movie", "nothing_convertible", "apply_fails"])
@@ -77,7 +96,7 @@ def test_selected_strips_become_scene_strips(session):
         assert c["scene"] == dict(engine="HYPERGS", resolution=[256, 144, 100], frames=[1, count], fps=24.0,
                                   camera=True, view_transform="Standard")
         assert c["clip"] == dict(frame_start=1, num_frames=count, source_start=spec["source"],
-                                 gaussians_per_frame=GAUSSIANS)
+                                 gaussians_per_frame=GAUSSIANS, quality="DRAFT")
     assert r["preview_shading"] == "RENDERED"  # the Sequencer's preview shows the Gaussians
     assert r["selected"] == sorted([c["scene_strip"] for c in r["converted"].values()] + ["colour"])
     report = next(line for line in session["console"].splitlines() if line.startswith("Info: HyperGS: "))
@@ -154,12 +173,15 @@ def run_session(zip_path, work, out_path):
         drawn = [list(c) for c in recorder.calls]
         recorder.calls.clear()
         op = bpy.types.HYPERGS_OT_convert_strip
-        dialog = Recorder()
-        op.draw(types_namespace(layout=dialog, **operator_defaults(bpy, op)), bpy.context)
+        select("a", "b")
+        dialog = {}
+        for preset in ("DRAFT", "STANDARD", "HIGH", "CUSTOM"):
+            layout = Recorder()
+            op.draw(types_namespace(layout=layout, **dict(operator_defaults(bpy, op), quality=preset)), bpy.context)
+            dialog[preset] = [list(c) for c in layout.calls]
         return dict(strip_menu=ui.menu_strip in bpy.types.SEQUENCER_MT_strip.draw._draw_funcs,
                     context_menu=ui.menu_strip in bpy.types.SEQUENCER_MT_context_menu.draw._draw_funcs,
-                    drawn=drawn, operator_context=recorder.attributes.get("operator_context"),
-                    dialog=[list(c) for c in dialog.calls])
+                    drawn=drawn, operator_context=recorder.attributes.get("operator_context"), dialog=dialog)
 
     @record("failures")
     def _():
@@ -214,7 +236,7 @@ def run_session(zip_path, work, out_path):
     def _():
         select("a", "b", "colour")  # the colour strip is not a movie: left alone
         before = {s.name for s in compat.all_strips(editor)}
-        result = bpy.ops.hypergs.convert_strip(gaussian_count=GAUSSIANS)
+        result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
         converted = {}
         for s in compat.all_strips(editor):
             if s.name in before or s.type != "SCENE":
@@ -231,7 +253,7 @@ def run_session(zip_path, work, out_path):
                            camera=sc.camera is not None, view_transform=sc.view_settings.view_transform),
                 clip=dict(frame_start=clip.hypergs.frame_start, num_frames=clip.hypergs.num_frames,
                           source_start=clip.hypergs.source_start,
-                          gaussians_per_frame=clip.hypergs.gaussians_per_frame))
+                          gaussians_per_frame=clip.hypergs.gaussians_per_frame, quality=clip.hypergs.quality))
         return dict(result=sorted(result), converted=converted,
                     others={"c": dict(mute=made["c"].mute,
                                       scene_strips=sum(1 for s in compat.all_strips(editor) if s.type == "SCENE"

@@ -4,7 +4,8 @@ render the Sequencer's output (the scene strip the conversion adds) with F12 to 
 against the source frames.
 
     .venv/bin/python tools/blender_main_job.py [--video PATH] [--size WxH] [--frames 1,20,40]
-                                               [--gaussians 1000] [--grid 1] [--encoder floor|bundled]
+                                               [--quality draft|standard|high] [--gaussians N]
+                                               [--encoder floor|bundled]
                                                [--zip EXTENSION.zip] [--json FIGURES.json]
 
 Runs with the `bpy` wheel of the venv (no Blender install needed). PNGs go to runs/main_job/.

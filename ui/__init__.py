@@ -11,7 +11,8 @@ from ..com.mesh import linked_file
 from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
                              HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
                              HYPERGS_OT_reencode)
-from ..ops.props import draw_encode_options
+from ..ops import preferences, quality
+from ..ops.operators import reencode_source
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -36,8 +37,9 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         if s.linked:
             self.draw_linked(obj, layout.box())
         info = layout.column(align=True)
+        cell = (s.canvas_width * s.canvas_height / s.gaussians_per_frame) ** 0.5 if s.gaussians_per_frame else 0
         for label, value in (("Frames", f"{s.num_frames}  ({s.canvas_width} x {s.canvas_height}, {s.fps:.3g} fps)"),
-                             ("Gaussians per Frame", f"{s.gaussians_per_frame}  (grid {s.grid} x {s.grid})"),
+                             ("Gaussians per Frame", f"{s.gaussians_per_frame:,}  (cells of {cell:.1f} px)"),
                              ("PSNR", f"{s.psnr:.2f} dB"),
                              ("Encoder", f"{s.encoder}, {s.encode_seconds:.1f} s")):
             row = info.row()
@@ -53,7 +55,7 @@ class HYPERGS_PT_clip(bpy.types.Panel):
             return
         layout.operator(HYPERGS_OT_edit_frame.bl_idname, icon="EDITMODE_HLT")
         box = layout.box()
-        draw_encode_options(box, s)
+        quality.draw(box, s, lambda: [reencode_source(obj)], preferences.runtime(context))
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
     @staticmethod

@@ -250,8 +250,9 @@ def main_job(argv=None) -> int:
     parser.add_argument("--video", default=str(SAMPLE), help="video to convert (default: the bundled sample)")
     parser.add_argument("--size", help="render size WxH (default: the video's)")
     parser.add_argument("--frames", help="scene frames to render, comma-separated (default: 5 spread)")
-    parser.add_argument("--gaussians", type=int, default=1000)
-    parser.add_argument("--grid", type=int, default=1)
+    parser.add_argument("--quality", choices=("draft", "standard", "high"), default="standard",
+                        help="the Convert dialog's Quality preset")
+    parser.add_argument("--gaussians", type=int, default=0, help="Gaussians per frame instead of a preset")
     parser.add_argument("--encoder", choices=("floor", "bundled"),
                         default=os.environ.get("HYPERGS_ENCODER", DEFAULT_ENCODER))
     parser.add_argument("--zip", help="install this extension zip instead of building one")
@@ -311,7 +312,8 @@ def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> N
     first, end = compat.strip_range(strip)
     scene.frame_start, scene.frame_end = first, end - 1
     t = time.perf_counter()
-    bpy.ops.hypergs.convert_strip(gaussian_count=args.gaussians, patch_grid=args.grid)
+    options = dict(quality="CUSTOM", gaussian_count=args.gaussians) if args.gaussians else dict(quality=args.quality.upper())
+    bpy.ops.hypergs.convert_strip(**options)
     report["convert_s"] = convert_s = time.perf_counter() - t
     scene_strip = scene.sequence_editor.active_strip
     obj = next(o for o in scene_strip.scene.objects if o.hypergs.is_clip)

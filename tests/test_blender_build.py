@@ -36,7 +36,7 @@ def test_manifest(manifest):
     assert "network" not in manifest["permissions"]
     assert sorted(manifest["platforms"]) == sorted(PLATFORMS)
     tags = [build_extension.wheel_tags(w) for w in manifest["wheels"]]
-    for package in ("onnxruntime", "av"):
+    for package in ("onnxruntime", "av", "constriction"):
         for plat in ("manylinux", "win_amd64", "macosx"):
             # Blender 4.2-5.0 run Python 3.11, 5.1 and later 3.13: every platform has a wheel for each
             # (an abi3 wheel serves both, but only a cp313 tag makes Blender accept the extension on 3.13).
@@ -96,10 +96,10 @@ def test_zip_contents(zips):
         top = name.split("/")[0]
         assert top not in {".venv", "tests", "data", "runs", "docs", "tools", ".git", ".ci", "dist"}, name
         assert "__pycache__" not in name and not name.endswith(".pyc"), name
-    assert sum(n.startswith("wheels/") for n in names) == 9
+    assert sum(n.startswith("wheels/") for n in names) == 15
     linux = next(z for z in split if z.stem.endswith("linux_x64"))
     wheels = [n for n in zipfile.ZipFile(linux).namelist() if n.startswith("wheels/")]
-    assert len(wheels) == 3 and all("manylinux" in w for w in wheels)
+    assert len(wheels) == 5 and all("manylinux" in w for w in wheels)
 
 
 def test_build_is_idempotent(tmp_path):

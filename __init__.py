@@ -5,7 +5,8 @@ The work happens in `hypergs_blender` (no bpy); `ops`, `ui` and `engine` are the
 import bpy
 
 from . import engine, ops, ui
-from .ops.props import HyperGSClipSettings
+from .com import paths
+from .ops.props import HyperGSClipSettings, HyperGSSceneSettings
 
 CLASSES = [*ops.CLASSES, *ui.CLASSES, *engine.CLASSES]
 
@@ -14,13 +15,17 @@ def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Object.hypergs = bpy.props.PointerProperty(type=HyperGSClipSettings)
+    bpy.types.Scene.hypergs = bpy.props.PointerProperty(type=HyperGSSceneSettings)
     engine.register()
     ui.register()
+    paths.register()
 
 
 def unregister():
+    paths.unregister()
     ui.unregister()
     engine.unregister()
+    del bpy.types.Scene.hypergs
     del bpy.types.Object.hypergs
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

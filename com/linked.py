@@ -10,10 +10,13 @@ into the mesh from a frame_change_post handler: that would rewrite mesh data on 
 handlers run while the engine reads), and edits made to those points would be lost silently on the
 next frame change. To edit a linked clip, embed it (hypergs.embed_clip).
 
-Files are read into memory once (a .hgs is small: ~1 byte per parameter) and re-read when their
-size or modification time changes, so no file handle is held open: the file can be overwritten
-(e.g. exported again) or deleted while Blender runs, on every platform. A frame is decoded on
-demand; HgsReader decodes a group of frames at a time and keeps it, so playing forward is cheap.
+Files are read lazily: opening one reads its header and frame index only, and a frame's group of
+frames is read from the file when that frame is first decoded (HgsReader keeps the decoded group, so
+playing forward is cheap). Each read opens the file and closes it again (`_FileOnDemand`), so no
+handle is held: the file can be overwritten (e.g. exported again) or deleted while Blender runs, on
+every platform. A cheap size check (its size and modification time, from os.stat) tells whether the
+file changed since it was opened; only then is its header read again. So drawing the panel costs a
+stat, never a read of the whole file, and the checksums catch a file changed between two reads.
 Every problem is a HyperGSError naming the file; the last one per file is kept for the panel.
 """
 from __future__ import annotations
@@ -54,18 +57,37 @@ def _stat_key(path: str) -> tuple:
     return st.st_size, st.st_mtime_ns
 
 
-def _open(path: str) -> HgsReader:
-    try:
-        with open(path, "rb") as f:
-            data = f.read()
-    except OSError as e:
-        raise HgsError(f"{path}: cannot read ({e.strerror})") from None
-    try:
-        reader = HgsReader(data)
-    except HgsError as e:
-        raise HgsError(str(e).replace("<bytes>", path, 1)) from None
-    reader.path = path  # decoding errors name the file
-    return reader
+class _FileOnDemand:
+    """A read-only binary file that holds no handle: every read opens the file, seeks, reads and closes
+    it again. What HgsReader needs of a file (read, seek, tell, close, name)."""
+
+    def __init__(self, path: str, size: int):
+        self.name, self._size, self._position = path, size, 0
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._position, os.SEEK_END: self._size}[whence]
+        self._position = base + offset
+        return self._position
+
+    def tell(self) -> int:
+        return self._position
+
+    def read(self, size: int = -1) -> bytes:
+        try:
+            with open(self.name, "rb") as f:
+                f.seek(self._position)
+                data = f.read() if size is None or size < 0 else f.read(size)
+        except OSError as e:
+            raise HgsError(f"{self.name}: cannot read ({e.strerror})") from None
+        self._position += len(data)
+        return data
+
+    def close(self) -> None:
+        pass
+
+
+def _open(path: str, size: int) -> HgsReader:
+    return HgsReader(_FileOnDemand(path, size))  # header and index only; HgsError names the file
 
 
 def _entry(path: str) -> _Entry:
@@ -83,7 +105,7 @@ def _entry(path: str) -> _Entry:
         if entry is not None and entry.key == key:  # unchanged and known to be broken
             raise HgsError(entry.error)
         try:
-            entry = _Entry(key, _open(path), None)
+            entry = _Entry(key, _open(path, key[0]), None)
         except HyperGSError as e:
             _files[path] = _Entry(key, None, str(e))
             _trim()

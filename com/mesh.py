@@ -62,9 +62,24 @@ def write_points(mesh, points: dict) -> None:
         pass
 
 
+def clip_problem(video) -> str | None:
+    """Why a clip read from a file (a GaussianVideo, or an HgsReader) cannot become a clip object, or
+    None: its canvas must be at least one pixel, and it must have a frame of at least one Gaussian."""
+    if video.canvas_width < 1 or video.canvas_height < 1:
+        return f"its canvas of {video.canvas_width} x {video.canvas_height} pixels is empty"
+    if video.num_frames < 1 or video.num_gaussians < 1:
+        return f"an empty clip ({video.num_frames} frames of {video.num_gaussians} Gaussians)"
+    return None
+
+
 def new_clip_mesh(name: str, video: GaussianVideo):
+    points = video_to_points(video)  # a padded clip (see points_to_video) without its padding
     mesh = bpy.data.meshes.new(name)
-    write_points(mesh, video_to_points(video))  # a padded clip (see points_to_video) without its padding
+    try:
+        write_points(mesh, points)
+    except BaseException:  # no half-made mesh is left behind
+        bpy.data.meshes.remove(mesh)
+        raise
     return mesh
 
 

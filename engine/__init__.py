@@ -31,12 +31,18 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
 
         problems = []
         clips = list(evaluated_clips(depsgraph, problems=problems))
+        if problems and missing_clips_stop(self.is_animation, bpy.app.background,
+                                           depsgraph.scene.hypergs.allow_missing_clips):
+            # Blender treats an ERROR report as a failed frame: no image is written, Ctrl-F12 and a
+            # command-line render stop, bpy.ops.render.render raises.
+            for problem in problems:
+                self.report({"ERROR"}, f"HyperGS: {problem}; the render stops (to render the clip black "
+                                       "instead: Render Properties > HyperGS > Render Missing Clips Black)")
+            return
         rgba = splat.render_clips(clips, width, height) if self.bl_use_gpu_context else None
         if rgba is None:  # no GPU context, or an image too large for the GPU: the numpy path
             rgba = render_clips(clips, width, height, keep_going)
-        for problem in problems:
-            # A warning, not an error: Blender treats an ERROR report as a failed frame (no image is
-            # written, Ctrl-F12 stops, bpy.ops.render.render raises). The other clips still render.
+        for problem in problems:  # the other clips still render
             self.report({"WARNING"}, f"HyperGS: {problem}; the clip renders nothing")
         if rgba is None:
             return
@@ -49,6 +55,14 @@ class HyperGSRenderEngine(bpy.types.RenderEngine):
 
     def view_draw(self, context, depsgraph):
         draw.view_draw(self, context, depsgraph, self._view)
+
+
+def missing_clips_stop(is_animation: bool, background: bool, allow_black: bool) -> bool:
+    """Whether a linked clip whose file is missing or damaged stops the render: in an animation
+    (Ctrl-F12) or command-line render (nobody watches: black frames would pass unnoticed, e.g. on a
+    render farm) unless the scene allows black frames; never in an interactive single-frame F12, which
+    shows the warning."""
+    return (is_animation or background) and not allow_black
 
 
 # Built-in panels (output size, frame range, colour management, mesh data, ...) show only for the

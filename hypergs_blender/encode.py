@@ -91,6 +91,45 @@ def plan_layout(width: int, height: int, stride: int, gaussians: int | None = No
     return Layout(width, height, cols, rows, stride, note)
 
 
+@dataclass(frozen=True)
+class EncodeCost:
+    """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
+    (Blender's dialogs). Measured on the 2-core development machine (one thread: 1280x720, cells of
+    6 px, the conv network ~0.85 s per frame; refine at cells of 4 px ~0.4 s per step); recalibrate when
+    an encoder changes."""
+    predict_s_per_gaussian: float  # the encoder's forward pass
+    hgs_bytes_per_gaussian: float  # a .hgs file at 8 bits
+    decode_s_per_pixel: float = 9e-8  # decoding the source frame (PyAV)
+    refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
+    refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
+    blend_bytes_per_gaussian: float = 44.0  # embedded in a .blend: float32 position, scale, rotation, RGBA, frame
+
+
+ENCODE_COSTS = {  # by encoder: "floor", or "network" (both backends)
+    "floor": EncodeCost(predict_s_per_gaussian=2e-5, hgs_bytes_per_gaussian=2.2),
+    "network": EncodeCost(predict_s_per_gaussian=3.5e-5, hgs_bytes_per_gaussian=3.8),
+}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    seconds: float
+    blend_bytes: float  # the clip embedded in a .blend
+    hgs_bytes: float  # the clip as a .hgs file (8 bits)
+
+
+def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network") -> Estimate:
+    """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
+    name: "floor", "network-onnx", ...): time and size, from ENCODE_COSTS."""
+    cost = ENCODE_COSTS["floor" if encoder == "floor" else "network"]
+    n = layout.count
+    per_frame = cost.decode_s_per_pixel * layout.width * layout.height + cost.predict_s_per_gaussian * n
+    if refine > 0:
+        per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
+    return Estimate(per_frame * frames, cost.blend_bytes_per_gaussian * n * frames,
+                    cost.hgs_bytes_per_gaussian * n * frames)
+
+
 class FloorEncoder:
     """The floor: one Gaussian per cell at its centre, sigma INITIAL_SIGMA cells, colour the cell's mean
     times the gain that makes the overlapping kernels sum to the image. No learning (the network with

@@ -50,8 +50,9 @@ class NetworkEncoder:
     any backend) over working frames of any size, tiled (see the module doc). stride, multiple and
     reach are the network's (model.ConvConfig)."""
 
-    def __init__(self, forward, stride: int, multiple: int, reach: int, name: str, tile: int = TILE):
-        self.forward, self.name = forward, name
+    def __init__(self, forward, stride: int, multiple: int, reach: int, name: str, tile: int = TILE,
+                 provider: str | None = None):
+        self.forward, self.name, self.provider = forward, name, provider  # provider: onnxruntime's, which ran
         self.stride, self.multiple, self.reach, self.tile = int(stride), int(multiple), int(reach), int(tile)
         self.granule = self.multiple // self.stride
 
@@ -115,25 +116,32 @@ def torch_encoder(model, device="cpu") -> NetworkEncoder:
     return NetworkEncoder(forward, cfg.stride, cfg.multiple, cfg.reach, "network-torch")
 
 
-def onnx_encoder(onnx_path, card: dict) -> NetworkEncoder:
+def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, threads: int = 0) -> NetworkEncoder:
+    """providers: onnxruntime execution providers, best first (default: the CPU's); threads: the CPU
+    provider's intra-op threads (0: onnxruntime's default, one per core)."""
     import onnxruntime as ort
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
+    options.intra_op_num_threads = threads
+    session = ort.InferenceSession(str(onnx_path), options, providers=providers or ["CPUExecutionProvider"])
 
     def forward(frames: np.ndarray) -> np.ndarray:
         return session.run(["params"], {"frames": frames})[0]
 
     geometry = card["geometry"]  # written by training.export from the model's config
-    return NetworkEncoder(forward, geometry["stride"], geometry["multiple"], geometry["reach"], "network-onnx")
+    # What runs: onnxruntime leaves out a provider that cannot start here (a missing CUDA library).
+    return NetworkEncoder(forward, geometry["stride"], geometry["multiple"], geometry["reach"], "network-onnx",
+                          provider=session.get_providers()[0])
 
 
-def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None):
+def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None,
+                    providers: list[str] | None = None, threads: int = 0):
     """The encoder to use. kind: "network" (the trained network in `weights`, default the bundled one)
     or "floor" (the no-learning grid floor). backend for the network: "torch" (needs torch and the
     .safetensors weights), "onnx" (needs onnxruntime and the .onnx model), or "auto": torch where both
-    are there, else onnx. What cannot load raises HyperGSError saying why; nothing falls back to
-    another kind of encoder."""
+    are there, else onnx. providers, threads: onnxruntime's execution providers and CPU threads (see
+    onnx_encoder). What cannot load raises HyperGSError saying why; nothing falls back to another kind
+    of encoder."""
     if kind == "floor":
         from .encode import FloorEncoder
         return FloorEncoder()
@@ -152,7 +160,7 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         onnx_path = directory / f"{BUNDLED_NAME}.onnx"
         if not onnx_path.is_file():
             raise HyperGSError(f"no ONNX model at {onnx_path}: run `hypergs export-onnx`")
-        return onnx_encoder(onnx_path, read_card(directory))
+        return onnx_encoder(onnx_path, read_card(directory), providers, threads)
     except HyperGSError:
         raise
     except Exception as e:  # a missing package or a broken weights file, said plainly

@@ -1,4 +1,4 @@
 """Operators and per-object settings (Blender glue; the work is in hypergs_blender)."""
-from . import operators, props
+from . import operators, preferences, props
 
-CLASSES = [*props.CLASSES, *operators.CLASSES]
+CLASSES = [*props.CLASSES, *preferences.CLASSES, *operators.CLASSES]

@@ -1,23 +1,76 @@
 """The encoder the operators use: `network.resolve_encoder` (the one policy: the bundled network,
 onnxruntime in a Blender without torch; what cannot load is reported, never replaced by another
-encoder), loaded once per Blender session. `HYPERGS_ENCODER=floor` picks the no-learning
-`FloorEncoder` instead (tests use it where the network's quality does not matter).
+encoder), loaded once per Blender session and set of preferences. `HYPERGS_ENCODER=floor` picks the
+no-learning `FloorEncoder` instead (tests use it where the network's quality does not matter).
+
+Where the network runs is the add-on preferences' choice (ops/preferences.py), read on the main thread
+into a `Runtime` and turned into onnxruntime's execution providers here: a GPU provider when the
+user's onnxruntime has one (the bundled wheels have CoreML on macOS; CUDA and DirectML come with the
+onnxruntime-gpu / onnxruntime-directml packages), the CPU otherwise, with the preferred thread count.
 """
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.network import resolve_encoder
 
 ENCODER_ENV = "HYPERGS_ENCODER"
+CPU = "CPUExecutionProvider"
+# onnxruntime's providers that we ask for -> what the user sees; "Best Available" tries the GPU ones in
+# this order, and the CPU always comes last (it runs what the others cannot).
+PROVIDERS = {"CUDAExecutionProvider": "CUDA", "DmlExecutionProvider": "DirectML",
+             "CoreMLExecutionProvider": "CoreML", CPU: "CPU"}
+AUTO = "AUTO"
 _cache: dict = {}
 
 
-def make_encoder():
+@dataclass(frozen=True)
+class Runtime:
+    """Where the network runs: `device` is AUTO (the best provider this onnxruntime has) or a key of
+    PROVIDERS; `threads` the CPU's (0: one per core)."""
+    device: str = AUTO
+    threads: int = 0
+
+
+def available_providers() -> list[str]:
+    """The PROVIDERS the installed onnxruntime has, best first (none without onnxruntime)."""
+    try:
+        import onnxruntime
+    except ImportError:
+        return []
+    have = set(onnxruntime.get_available_providers())
+    return [p for p in PROVIDERS if p in have]
+
+
+def providers_for(device: str, available: list[str]) -> list[str]:
+    """The execution providers to ask onnxruntime for, best first: the chosen GPU provider (every
+    available one for AUTO) if this onnxruntime has it, then the CPU."""
+    wanted = [p for p in available if p != CPU] if device == AUTO else [device]
+    return [p for p in wanted if p in available and p != CPU] + [CPU]
+
+
+def make_encoder(runtime: Runtime = Runtime()):
     choice = os.environ.get(ENCODER_ENV, "bundled").strip().lower()
     if choice not in ("bundled", "floor"):
         raise HyperGSError(f"{ENCODER_ENV}={choice!r}: use 'bundled' or 'floor'")
-    if choice not in _cache:  # loading the network is slow: once per Blender session
-        _cache[choice] = resolve_encoder("floor" if choice == "floor" else "network")
-    return _cache[choice]
+    key = (choice, runtime if choice == "bundled" else None)
+    if key not in _cache:  # loading the network is slow: once per Blender session and preferences
+        _cache.clear()  # one network in memory
+        _cache[key] = (resolve_encoder("floor") if choice == "floor" else
+                       resolve_encoder("network", providers=providers_for(runtime.device, available_providers()),
+                                       threads=runtime.threads))
+    return _cache[key]
+
+
+def describe_encoder(encoder, runtime: Runtime) -> str:
+    """What encoded, for the clip panel and the operator's report: e.g. "network-onnx on CUDA",
+    "network-onnx on CPU (4 threads)", "floor"."""
+    provider = getattr(encoder, "provider", None)
+    if provider is None:
+        return encoder.name
+    text = f"{encoder.name} on {PROVIDERS.get(provider, provider)}"
+    if provider == CPU:
+        text += f" ({runtime.threads} thread{'s' if runtime.threads > 1 else ''})" if runtime.threads else " (all cores)"
+    return text

@@ -13,7 +13,7 @@ from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.metrics import psnr
 from ..hypergs_blender.render import render_params
-from .encoder import make_encoder
+from .encoder import Runtime, describe_encoder, make_encoder
 
 PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
 
@@ -23,6 +23,7 @@ class EncodeRequest:
     path: str
     gaussians: int | None  # Gaussians per frame, or None: one per cell x cell source pixels
     cell: float | None
+    refine: int = 0  # refine steps after the network (0: none)
     start: int = 0
     stop: int | None = None
 
@@ -32,20 +33,20 @@ class EncodeResult:
     video: GaussianVideo
     psnr: float
     seconds: float
-    encoder: str
+    encoder: str  # what encoded, and on which device (describe_encoder)
 
 
-def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
+def run_encode(request: EncodeRequest, runtime: Runtime = Runtime(), progress=None) -> EncodeResult:
     """Encode, measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
-    progress(done, total) -> False cancels (raises Cancelled)."""
+    runtime: where the network runs; progress(done, total) -> False cancels (raises Cancelled)."""
     started = time.perf_counter()
-    encoder = make_encoder()
+    encoder = make_encoder(runtime)
     plan = EncodePlan(request.path, encoder, request.gaussians, None if request.gaussians else request.cell,
                       start=request.start, stop=request.stop)
     total = len(plan.indices)
     measured = set(np.round(np.linspace(0, total - 1, min(PSNR_FRAMES, total))).astype(int).tolist())
     chunks, values, done = [], [], 0
-    for frames, params in plan.chunks(progress):
+    for frames, params in plan.chunks(progress, refine=request.refine):
         for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
             image = render_params(params[i], plan.width, plan.height, plan.width, plan.height)
             values.append(float(psnr(image[None], frames[i][None] / np.float32(255))[0]))
@@ -53,16 +54,20 @@ def run_encode(request: EncodeRequest, progress=None) -> EncodeResult:
         done += len(frames)
     video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, plan.grid,
                           dict(plan.source, encode_seconds=time.perf_counter() - started))
-    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started, encoder.name)
+    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started,
+                        describe_encoder(encoder, runtime))
 
 
 class EncodeJob:
-    """run_encode on a worker thread; `cancel()` makes its progress callback return False."""
+    """run_encode for each request in turn, on a worker thread; `cancel()` makes its progress callback
+    return False. All or nothing: the job has `results` for every request, or an `error`."""
 
-    def __init__(self, request: EncodeRequest):
-        self.request = request
-        self.done, self.total = 0, 0
-        self.result: EncodeResult | None = None
+    def __init__(self, requests: list[EncodeRequest], runtime: Runtime = Runtime()):
+        self.requests = list(requests)
+        self.runtime = runtime
+        self.index = 0  # the request being encoded
+        self.done, self.total = 0, 0  # its frames
+        self.results: list[EncodeResult] = []
         self.error: BaseException | None = None
         self._cancel = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hypergs-encode", daemon=True)
@@ -73,7 +78,9 @@ class EncodeJob:
 
     def _run(self):
         try:
-            self.result = run_encode(self.request, self._progress)
+            for self.index, request in enumerate(self.requests):
+                self.done = self.total = 0
+                self.results.append(run_encode(request, self.runtime, self._progress))
         except BaseException as e:  # handed to the main thread, which reports it
             self.error = e
 
@@ -91,14 +98,22 @@ class EncodeJob:
 
     @property
     def finished(self) -> bool:
-        return not self._thread.is_alive() and (self.result is not None or self.error is not None)
+        return not self._thread.is_alive() and (self.error is not None or len(self.results) == len(self.requests))
 
     def join(self, timeout=None):
         self._thread.join(timeout)
 
     @property
     def fraction(self) -> float:
-        return self.done / self.total if self.total else 0.0
+        part = self.done / self.total if self.total else 0.0
+        return (self.index + part) / max(1, len(self.requests))
+
+    def status(self) -> str:
+        """What the job does now, for the status bar."""
+        text = f"encoding frame {self.done} of {self.total}" if self.total else "starting"
+        if len(self.requests) > 1:
+            text += f" of clip {self.index + 1} of {len(self.requests)}"
+        return text
 
 
 def describe(error: BaseException) -> str:

@@ -13,23 +13,27 @@ import re
 import traceback
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..com import linked
-from ..com.mesh import linked_file, read_clip_points
+from ..com.compat import all_strips, strip_range, strip_source_first
+from ..com.mesh import clip_problem, linked_file, read_clip_points
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io import image_sequence
 from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
+from . import preferences
 from . import scene as clip_scene
-from .jobs import EncodeJob, EncodeRequest, describe
-from .props import CELL_SIZE, GAUSSIAN_COUNT
+from .jobs import EncodeJob, describe
+from . import quality
+from .quality import EncodeOptions, Source
 
 
 class _EncodeOperator:
-    """Mixin: subclasses define make_request(context) -> EncodeRequest and apply(context, result)."""
+    """Mixin: subclasses define make_requests(context) -> [EncodeRequest] and apply(context, results)
+    -> message; apply gets a result for every request (one job encodes them in turn, all or nothing)."""
 
     bl_options = {"REGISTER", "UNDO"}
 
@@ -40,11 +44,11 @@ class _EncodeOperator:
 
     def _begin(self, context):
         try:
-            request = self.make_request(context)
+            requests = self.make_requests(context)
         except HyperGSError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        job = EncodeJob(request)
+        job = EncodeJob(requests, preferences.runtime(context))
         if self.use_modal and context.window is not None and not bpy.app.background:
             self._job = job.start()
             wm = context.window_manager
@@ -66,8 +70,7 @@ class _EncodeOperator:
                 self._cleanup(context)
                 return self._end(context, job)
             context.window_manager.progress_update(int(100 * job.fraction))
-            if job.total:
-                self._status(context, f"HyperGS: encoding frame {job.done} of {job.total} (Esc to cancel)")
+            self._status(context, f"HyperGS: {job.status()} (Esc to cancel)")
             return {"RUNNING_MODAL"}
         if event.type in {"MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "TIMER_REPORT", "WINDOW_DEACTIVATE"}:
             return {"PASS_THROUGH"}
@@ -102,8 +105,8 @@ class _EncodeOperator:
             self.report({"ERROR"}, describe(job.error))
             return {"CANCELLED"}
         try:
-            message = self.apply(context, job.result)
-        except Exception as e:  # what apply() made is removed again (see scene.create_clip_object)
+            message = self.apply(context, job.results)
+        except Exception as e:  # what apply() made is removed again (scene.Undo)
             if not isinstance(e, HyperGSError):
                 traceback.print_exc()
             self.report({"ERROR"}, describe(e))
@@ -115,7 +118,7 @@ class _EncodeOperator:
 def _summary(obj, result, changed) -> str:
     s = obj.hypergs
     text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians, "
-            f"PSNR {result.psnr:.2f} dB, {result.seconds:.1f} s")
+            f"PSNR {result.psnr:.2f} dB, {result.seconds:.1f} s with {result.encoder}")
     if changed:
         text += "; changed: " + ", ".join(changed)
     return text
@@ -152,7 +155,7 @@ def _scene_fps(scene) -> float:
     return scene.render.fps / scene.render.fps_base
 
 
-class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper):
+class HYPERGS_OT_import_video(_EncodeOperator, EncodeOptions, bpy.types.Operator, ImportHelper):
     """Encode a video or an image sequence (one of its files, or a pattern such as shot_####.png)
     as 2D Gaussians: one object whose points follow the scene frame"""
 
@@ -163,31 +166,50 @@ class HYPERGS_OT_import_video(_EncodeOperator, bpy.types.Operator, ImportHelper)
     filename_ext = ".mp4"
     filter_glob: StringProperty(default=";".join("*" + e for e in VIDEO_EXTENSIONS + IMAGE_EXTENSIONS),
                                 options={"HIDDEN"})
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    cell_size: FloatProperty(**CELL_SIZE)
+    first_frame: IntProperty(name="First Frame", default=1, min=1,
+                             description="The video's first frame to encode (1: its first)")
+    last_frame: IntProperty(name="Last Frame", default=0, min=0,
+                            description="The video's last frame to encode (0: its last)")
 
     def invoke(self, context, event):
         self.use_modal = True
-        if self.filepath:  # dropped on the 3D Viewport, or invoked by a script with a file
-            return self.execute(context)
-        return ImportHelper.invoke(self, context, event)
+        if self.filepath:  # dropped on the 3D Viewport, or invoked by a script with a file: the options
+            return context.window_manager.invoke_props_dialog(self)
+        return ImportHelper.invoke(self, context, event)  # the file browser shows the options beside
+
+    def draw(self, context):
+        quality.draw(self.layout, self, lambda: [self._source()], preferences.runtime(context))
+        col = self.layout.column(align=True)
+        col.prop(self, "first_frame")
+        col.prop(self, "last_frame")
 
     def execute(self, context):
         return self._begin(context)
 
-    def make_request(self, context):
-        self._path = _check_file(self.filepath)
-        return EncodeRequest(self._path, self.gaussian_count or None, self.cell_size)
+    def _source(self) -> Source:
+        path = _check_file(self.filepath)
+        if self.last_frame and self.last_frame < self.first_frame:
+            raise HyperGSError(f"Last Frame {self.last_frame} comes before First Frame {self.first_frame}")
+        return Source(os.path.basename(path), path, self.first_frame - 1, self.last_frame or None)
 
-    def apply(self, context, result):
+    def make_requests(self, context):
+        source = self._source()
+        self._path = source.path
+        return [quality.request(source, quality.settings(self))]
+
+    def apply(self, context, results):
+        (result,) = results
         name = _clip_name(self._path)
         if image_sequence.is_image_sequence(self._path):  # image files have no frame rate: the scene's
             result.video.fps = _scene_fps(context.scene)
-        obj = clip_scene.create_clip_object(
-            context.view_layer.active_layer_collection.collection, name, result.video,
-            frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
-            encoder=result.encoder, source=self._path, source_start=0)
-        changed = clip_scene.prepare_scene(context.scene)
+        with clip_scene.Undo() as undo:
+            obj = clip_scene.create_clip_object(
+                context.view_layer.active_layer_collection.collection, name, result.video,
+                frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
+                encoder=result.encoder, source=self._path, source_start=int(result.video.source["frames"][0]),
+                undo=undo)
+            changed = clip_scene.prepare_scene(context.scene, undo)
+        quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
         clip_scene.select_only(context, obj)
         return _summary(obj, result, changed)
 
@@ -205,84 +227,97 @@ class HYPERGS_FH_video(bpy.types.FileHandler):
         return context.area is not None and context.area.type == "VIEW_3D"
 
 
-def all_strips(editor):
-    """Every strip, meta strips' contents included (`strips_all` since 5.0, `sequences_all` before)."""
-    return editor.strips_all if hasattr(editor, "strips_all") else editor.sequences_all
-
-
 def _sequencer_scene(context):
     return getattr(context, "sequencer_scene", None) or context.scene
 
 
-class HYPERGS_OT_convert_strip(_EncodeOperator, bpy.types.Operator):
-    """Convert the active movie or image-sequence strip to 2D Gaussians (keeps its timing; mutes the strip)"""
+def strips_to_convert(editor) -> list:
+    """The movie and image strips to convert: the selected ones, or the active one when none is
+    selected. Raises HyperGSError when there is none."""
+    chosen = [s for s in all_strips(editor) if s.select] if editor is not None else []
+    if not chosen and editor is not None and editor.active_strip is not None:
+        chosen = [editor.active_strip]
+    if not chosen:
+        raise HyperGSError("No strip selected: select movie or image-sequence strips in the Sequencer")
+    strips = [s for s in chosen if s.type in ("MOVIE", "IMAGE")]
+    if not strips:
+        names = ", ".join(f"'{s.name}'" for s in chosen[:3]) + (", ..." if len(chosen) > 3 else "")
+        raise HyperGSError(f"{names}: not a movie strip or an image sequence")
+    return strips
+
+
+class HYPERGS_OT_convert_strip(_EncodeOperator, EncodeOptions, bpy.types.Operator):
+    """Convert the selected movie and image-sequence strips to 2D Gaussians. Each clip gets a scene
+    rendered by HyperGS, played by a scene strip with the original timing above the (muted) original"""
 
     bl_idname = "hypergs.convert_strip"
-    bl_label = "Convert Strip to Gaussians"
-
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    cell_size: FloatProperty(**CELL_SIZE)
+    bl_label = "Convert to Gaussians"
 
     @classmethod
     def poll(cls, context):
-        return _sequencer_scene(context) is not None
+        return _sequencer_scene(context) is not None  # no strip to convert: execute says so
 
     def invoke(self, context, event):
         self.use_modal = True
-        return self.execute(context)
+        return context.window_manager.invoke_props_dialog(self)  # the options; OK runs execute()
+
+    def draw(self, context):
+        editor = _sequencer_scene(context).sequence_editor
+        quality.draw(self.layout, self, lambda: [strip_source(s) for s in strips_to_convert(editor)],
+                     preferences.runtime(context))
 
     def execute(self, context):
         return self._begin(context)
 
-    def _strip(self, context):
+    def make_requests(self, context):
         scene = _sequencer_scene(context)
-        editor = scene.sequence_editor
-        strip = editor.active_strip if editor is not None else None
-        if strip is None:
-            raise HyperGSError("No active strip: select a movie strip in the Sequencer")
-        if strip.type not in ("MOVIE", "IMAGE"):
-            raise HyperGSError(f"The active strip '{strip.name}' is not a movie strip or an image sequence")
-        return scene, strip
+        sources = [strip_source(strip) for strip in strips_to_convert(scene.sequence_editor)]
+        chosen = quality.settings(self)
+        self._targets = [(source.name, source.path) for source in sources]
+        self._scene = scene.name
+        return [quality.request(source, chosen) for source in sources]
 
-    def make_request(self, context):
-        scene, strip = self._strip(context)
-        library = getattr(strip.id_data, "library", None)
-        # Index of the strip's first shown frame in its source (trim and hold offsets), and how many.
-        first = max(0, int(round(strip.frame_final_start - strip.frame_start + strip.animation_offset_start)))
-        count = int(strip.frame_final_duration)
-        if strip.type == "IMAGE":
-            path, first = _image_strip_source(strip, library, first, count)
-        else:
-            path = _check_file(bpy.path.abspath(strip.filepath, library=library))
-        self._path = path
-        self._target = (scene.name, strip.name, int(strip.frame_final_start))
-        return EncodeRequest(path, self.gaussian_count or None, self.cell_size, start=first, stop=first + count)
+    def apply(self, context, results):
+        scene = bpy.data.scenes.get(self._scene)
+        editor = scene.sequence_editor if scene is not None else None
+        strips = [all_strips(editor).get(name) if editor is not None else None for name, _ in self._targets]
+        for strip, (name, _) in zip(strips, self._targets):
+            if strip is None:
+                raise HyperGSError(f"The strip '{name}' is gone")
+        made = []
+        with clip_scene.Undo() as undo:
+            for strip, (_, path), result in zip(strips, self._targets, results):
+                if strip.type == "IMAGE":  # image files have no frame rate: the scene's
+                    result.video.fps = _scene_fps(scene)
+                obj, scene_strip = clip_scene.add_strip_scene(
+                    scene, strip, result.video, undo=undo, psnr=result.psnr, seconds=result.seconds,
+                    encoder=result.encoder, source=path, source_start=int(result.video.source["frames"][0]))
+                quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
+                made.append((obj, scene_strip, result))
+            changed = clip_scene.sequencer_preview_rendered(scene, undo)
+        for strip in strips:
+            strip.select = False
+        for _, scene_strip, _ in made:
+            scene_strip.select = True
+        editor.active_strip = made[-1][1]
+        text = "; ".join(_summary(obj, result, []).removeprefix("HyperGS: ") + f", played by the scene strip "
+                         f"'{scene_strip.name}' (channel {scene_strip.channel})"
+                         for obj, scene_strip, result in made)
+        return "HyperGS: " + text + ("; changed: " + ", ".join(changed) if changed else "")
 
-    def apply(self, context, result):
-        scene_name, strip_name, frame_start = self._target
-        scene = bpy.data.scenes.get(scene_name)
-        strip = all_strips(scene.sequence_editor).get(strip_name) if scene and scene.sequence_editor else None
-        if strip is None:
-            raise HyperGSError(f"The strip '{strip_name}' is gone")
-        collection = (context.view_layer.active_layer_collection.collection if scene == context.scene
-                      else scene.collection)
-        if strip.type == "IMAGE":  # image files have no frame rate: the scene's
-            result.video.fps = _scene_fps(scene)
-        obj = clip_scene.create_clip_object(
-            collection, strip.name, result.video, frame_start=frame_start, speed=1.0,
-            psnr=result.psnr, seconds=result.seconds, encoder=result.encoder,
-            source=self._path, source_start=int(result.video.source["frames"][0]))
-        strip.mute = True  # the sequencer's output would replace the render otherwise
-        changed = ["strip muted"]
-        if scene.render.use_sequencer and not any(
-                not s.mute and s.type not in {"SOUND", "META"} for s in all_strips(scene.sequence_editor)):
-            # Blender 4.2 renders the sequencer (black) even when all its strips are muted.
-            scene.render.use_sequencer = False
-            changed.append("Output > Post Processing > Sequencer off (it would render the muted strip)")
-        changed += clip_scene.prepare_scene(scene)
-        if scene == context.scene:
-            clip_scene.select_only(context, obj)
-        return _summary(obj, result, changed)
+
+def strip_source(strip) -> Source:
+    """What a movie or image strip shows: its source's frames from the strip's first shown one on, as
+    many as the strip is long. Raises HyperGSError (a missing file, images that are not a sequence)."""
+    library = getattr(strip.id_data, "library", None)
+    first = strip_source_first(strip)  # index of the strip's first shown frame in its source
+    start, end = strip_range(strip)
+    count = end - start
+    if strip.type == "IMAGE":
+        path, first = _image_strip_source(strip, library, first, count)
+    else:
+        path = _check_file(bpy.path.abspath(strip.filepath, library=library))
+    return Source(strip.name, path, first, first + count)
 
 
 def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, int]:
@@ -305,7 +340,7 @@ def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, in
 
 
 class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
-    """Encode the clip's source again with the panel's Gaussian count or cell size (replaces its points)"""
+    """Encode the clip's source again with the panel's quality (replaces its points)"""
 
     bl_idname = "hypergs.reencode"
     bl_label = "Re-encode"
@@ -323,14 +358,14 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
     def execute(self, context):
         return self._begin(context)
 
-    def make_request(self, context):
+    def make_requests(self, context):
         obj = context.object
         s = obj.hypergs
         self._name = obj.name
-        return EncodeRequest(_check_file(s.source), s.gaussian_count or None, s.cell_size, start=s.source_start,
-                             stop=s.source_start + s.num_frames)
+        return [quality.request(reencode_source(obj), quality.settings(s))]
 
-    def apply(self, context, result):
+    def apply(self, context, results):
+        (result,) = results
         obj = bpy.data.objects.get(self._name)
         if obj is None or not obj.hypergs.is_clip:
             raise HyperGSError(f"The object '{self._name}' is gone")
@@ -340,6 +375,12 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
                                      encoder=result.encoder, source=obj.hypergs.source,
                                      source_start=obj.hypergs.source_start)
         return _summary(obj, result, [])
+
+
+def reencode_source(obj) -> Source:
+    """The frames a clip was encoded from (what Re-encode encodes again)."""
+    s = obj.hypergs
+    return Source(obj.name, _check_file(s.source), s.source_start, s.source_start + s.num_frames)
 
 
 def clip_frame(obj, scene_frame: int) -> int:
@@ -439,7 +480,7 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
     def execute(self, context):
         try:
             message = self._import(context)
-        except Exception as e:  # what it made is removed again (create_clip_object)
+        except Exception as e:  # what it made is removed again (scene.Undo)
             if not isinstance(e, HyperGSError):
                 traceback.print_exc()
             self.report({"ERROR"}, describe(e))
@@ -452,18 +493,25 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
         if not self.filepath:
             raise HyperGSError("No Gaussian video file given")
         path = bpy.path.abspath(self.filepath)
-        if self.link:
-            if os.path.splitext(path)[1].lower() != ".hgs":
-                raise HyperGSError(f"{os.path.basename(path)}: only .hgs files can be linked "
-                                   "(import .usd and .npz clips embedded)")
-            video = linked.verify(path)  # header, index and every frame checked before anything is made
-        else:
-            video = load_clip(path)
-        obj = clip_scene.create_clip_object(
-            context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
-            video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
-            **_settings_from_source(video.source))
-        changed = clip_scene.prepare_scene(context.scene)
+        name = os.path.basename(path)
+        if self.link and os.path.splitext(path)[1].lower() != ".hgs":
+            raise HyperGSError(f"{name}: only .hgs files can be linked (import .usd and .npz clips embedded)")
+        try:  # everything is read and checked before anything is made
+            video = linked.verify(path) if self.link else load_clip(path)
+        except HyperGSError:
+            raise  # the readers' messages name the file and the reason
+        except Exception as e:  # still one line, naming the file
+            traceback.print_exc()
+            raise HyperGSError(f"{name}: cannot read it as a Gaussian video ({type(e).__name__}: {e})") from e
+        problem = clip_problem(video)
+        if problem:
+            raise HyperGSError(f"{name}: {problem}")
+        with clip_scene.Undo() as undo:
+            obj = clip_scene.create_clip_object(
+                context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
+                video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
+                undo=undo, **_settings_from_source(video.source))
+            changed = clip_scene.prepare_scene(context.scene, undo)
         clip_scene.select_only(context, obj)
         s = obj.hypergs
         text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "

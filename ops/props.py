@@ -1,12 +1,10 @@
-"""Per-object HyperGS settings (`Object.hypergs`): what the clip is, how it was encoded, its timing."""
+"""HyperGS settings: per object (`Object.hypergs`: what the clip is, how it was encoded, its timing) and
+per scene (`Scene.hypergs`: render settings)."""
 import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-GAUSSIAN_COUNT = dict(name="Gaussians", description="Gaussians per frame (0: from the cell size; more: sharper, slower)",
-                      default=0, min=0, max=1_000_000)
-CELL_SIZE = dict(name="Cell Size", description="Source pixels per Gaussian (one Gaussian per cell x cell pixels; "
-                 "smaller: more Gaussians, sharper, slower)", default=6.0, min=4.0, max=32.0)
-
+from ..com.compat import path_options
+from .quality import EncodeOptions
 
 def _timing_changed(self, context):
     from . import scene
@@ -14,11 +12,14 @@ def _timing_changed(self, context):
 
 
 def _linked_path_changed(self, context):
+    from ..com import paths
     from . import scene
-    scene.refresh_linked(self.id_data)
+    if not paths.rebasing():
+        scene.refresh_linked(self.id_data)
 
 
-class HyperGSClipSettings(bpy.types.PropertyGroup):
+class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
+    """A clip's settings; its encode options (EncodeOptions) are those of the next Re-encode."""
     is_clip: BoolProperty(name="HyperGS Clip", default=False)
     source: StringProperty(name="Source", subtype="FILE_PATH", description="The video the clip was encoded from")
     source_start: IntProperty(name="First Source Frame", default=0, min=0,
@@ -42,11 +43,18 @@ class HyperGSClipSettings(bpy.types.PropertyGroup):
     linked: BoolProperty(name="Linked", default=False,
                          description="The Gaussians are read from an external .hgs file at render time "
                                      "(the mesh only outlines the image plane)")
-    linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed,
-                                description="The .hgs file a linked clip's Gaussians are read from")
-    # Settings for the next Re-encode.
-    gaussian_count: IntProperty(**GAUSSIAN_COUNT)
-    cell_size: FloatProperty(**CELL_SIZE)
+    linked_path: StringProperty(name="File", subtype="FILE_PATH", update=_linked_path_changed, options=path_options(),
+                                description="The .hgs file a linked clip's Gaussians are read from "
+                                            "(// at the start: relative to the .blend file's folder)")
 
 
-CLASSES = [HyperGSClipSettings]
+class HyperGSSceneSettings(bpy.types.PropertyGroup):
+    """Per-scene HyperGS render settings (`Scene.hypergs`; Properties > Render > HyperGS)."""
+    allow_missing_clips: BoolProperty(
+        name="Render Missing Clips Black", default=False,
+        description="When a linked clip's file is missing or damaged during an animation (Ctrl-F12) or "
+                    "command-line render, render it black with a warning instead of stopping the render "
+                    "(a single interactive F12 always goes on with a warning)")
+
+
+CLASSES = [HyperGSClipSettings, HyperGSSceneSettings]

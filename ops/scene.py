@@ -17,7 +17,9 @@ import math
 import bpy
 
 from ..com import linked as linked_files
+from ..com.compat import set_modifier_input, strip_range, strip_siblings
 from ..com.mesh import linked_file, new_clip_mesh, new_linked_mesh, outline
+from ..com.paths import stored_path
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 
@@ -134,8 +136,8 @@ def sync_timing(obj) -> None:
     if mod is None:
         return
     ids = _input_ids(mod.node_group)
-    mod[ids["Start Frame"]] = int(obj.hypergs.frame_start)
-    mod[ids["Speed"]] = float(obj.hypergs.speed)
+    set_modifier_input(mod, ids["Start Frame"], int(obj.hypergs.frame_start))
+    set_modifier_input(mod, ids["Speed"], float(obj.hypergs.speed))
     obj.update_tag()
 
 
@@ -155,7 +157,6 @@ def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, en
     s.num_frames = video.num_frames
     s.gaussians_per_frame = video.num_gaussians
     s.grid = video.grid
-    s.gaussian_count = video.num_gaussians
     s.psnr = psnr
     s.encoder = encoder
     s.encode_seconds = seconds
@@ -163,21 +164,52 @@ def store_settings(obj, video: GaussianVideo, *, psnr: float, seconds: float, en
     s.fps = video.fps
 
 
+class Undo:
+    """What a change made so far, taken back if a later step fails, so a failed operator leaves the
+    scene as it was. Use `with Undo() as undo:`; `made(datablocks, block)` registers a new datablock
+    (removed again), `call(fn)` any other way back. Given a `parent`, it registers there instead and the
+    outermost one takes everything back."""
+
+    def __init__(self, parent: "Undo | None" = None):
+        self._parent = parent
+        self._steps: list = []
+
+    def made(self, datablocks, block) -> None:
+        self.call(lambda: datablocks.remove(block))
+
+    def call(self, fn) -> None:
+        if self._parent is not None:
+            self._parent.call(fn)
+        else:
+            self._steps.append(fn)
+
+    def __enter__(self) -> "Undo":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            for fn in reversed(self._steps):
+                fn()
+        self._steps.clear()
+        return False
+
+
 def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_start: int, speed: float,
-                       linked_path: str | None = None, **settings):
+                       linked_path: str | None = None, undo: Undo | None = None, **settings):
     """A new clip object in `collection`: mesh, settings, frame modifier. Returns it.
     linked_path: link the clip to that .hgs file instead (`video` may then be its HgsReader: only
     the header is used); the mesh is the image plane's outline and there is no frame modifier.
-    On any failure what it made is removed again, so the scene is left as it was."""
-    made = []
-    try:
+    On any failure what it made is removed again (with `undo`: registered there), so the scene is
+    left as it was."""
+    with Undo(undo) as undo:
+        groups_before = set(bpy.data.node_groups.keys())
         if linked_path:
             mesh = new_linked_mesh(name, video.canvas_width, video.canvas_height)
         else:
             mesh = new_clip_mesh(name, video)
-        made.append((bpy.data.meshes, mesh))
+        undo.made(bpy.data.meshes, mesh)
         obj = bpy.data.objects.new(name, mesh)
-        made.insert(0, (bpy.data.objects, obj))
+        undo.made(bpy.data.objects, obj)
         # The image plane lies in the object's XY plane; standing it up shows it in the front view.
         obj.rotation_euler = (math.pi / 2, 0.0, 0.0)
         store_settings(obj, video, **settings)
@@ -185,17 +217,12 @@ def create_clip_object(collection, name: str, video: GaussianVideo, *, frame_sta
         obj.hypergs.speed = speed
         if linked_path:
             obj.hypergs.linked = True
-            obj.hypergs.linked_path = linked_path
+            obj.hypergs.linked_path = stored_path(linked_path)
         else:
-            groups_before = set(bpy.data.node_groups.keys())
             mod = add_frame_modifier(obj)
             if mod.node_group.name not in groups_before:
-                made.append((bpy.data.node_groups, mod.node_group))
+                undo.made(bpy.data.node_groups, mod.node_group)
         collection.objects.link(obj)
-    except BaseException:
-        for datablocks, block in made:
-            datablocks.remove(block)
-        raise
     return obj
 
 
@@ -239,7 +266,7 @@ def link_clip(obj, path: str) -> None:
     if mod is not None:
         obj.modifiers.remove(mod)
     obj.hypergs.linked = True
-    obj.hypergs.linked_path = path  # refresh_linked copies the file's header into the settings
+    obj.hypergs.linked_path = stored_path(path)  # refresh_linked copies the file's header into the settings
 
 
 def refresh_linked(obj) -> None:
@@ -272,13 +299,17 @@ def select_only(context, obj) -> None:
     context.view_layer.objects.active = obj
 
 
-def prepare_scene(scene) -> list[str]:
-    """Render settings the clips need; returns what was changed, to tell the user."""
+def prepare_scene(scene, undo: Undo | None = None) -> list[str]:
+    """Render settings the clips need; returns what was changed, to tell the user. With `undo`, the
+    settings and a camera it adds are registered there."""
     changed = []
-    if scene.render.engine != "HYPERGS":
-        scene.render.engine = "HYPERGS"
+    render, vs = scene.render, scene.view_settings
+    if undo is not None:
+        was = render.engine, vs.view_transform, vs.look, vs.exposure, vs.gamma
+        undo.call(lambda: _set_render_settings(render, vs, *was))
+    if render.engine != "HYPERGS":
+        render.engine = "HYPERGS"
         changed.append("render engine to HyperGS")
-    vs = scene.view_settings
     if vs.view_transform != VIEW_TRANSFORM or vs.look != "None" or vs.exposure != 0 or vs.gamma != 1:
         vs.view_transform = VIEW_TRANSFORM
         vs.look = "None"
@@ -286,18 +317,83 @@ def prepare_scene(scene) -> list[str]:
         vs.gamma = 1.0
         changed.append("view transform to Standard (so renders give back the video's colours)")
     if scene.camera is None:
-        scene.camera = _new_camera(scene)
+        scene.camera = _new_camera(scene, undo)
         changed.append("added a camera (F12 needs one)")
     return changed
 
 
-def _new_camera(scene):
-    cam = bpy.data.cameras.new("HyperGS Camera")
-    cam.type = "ORTHO"
-    aspect = scene.render.resolution_x / max(1, scene.render.resolution_y)
-    cam.ortho_scale = 2.0 * max(aspect, 1.0)
-    obj = bpy.data.objects.new("HyperGS Camera", cam)
-    obj.location = (0.0, -6.0, 0.0)
-    obj.rotation_euler = (math.pi / 2, 0.0, 0.0)
-    scene.collection.objects.link(obj)
+def _set_render_settings(render, view_settings, engine, view_transform, look, exposure, gamma):
+    render.engine = engine
+    view_settings.view_transform, view_settings.look = view_transform, look
+    view_settings.exposure, view_settings.gamma = exposure, gamma
+
+
+def _new_camera(scene, undo: Undo | None):
+    with Undo(undo) as undo:
+        cam = bpy.data.cameras.new("HyperGS Camera")
+        undo.made(bpy.data.cameras, cam)
+        cam.type = "ORTHO"
+        aspect = scene.render.resolution_x / max(1, scene.render.resolution_y)
+        cam.ortho_scale = 2.0 * max(aspect, 1.0)
+        obj = bpy.data.objects.new("HyperGS Camera", cam)
+        undo.made(bpy.data.objects, obj)
+        obj.location = (0.0, -6.0, 0.0)
+        obj.rotation_euler = (math.pi / 2, 0.0, 0.0)
+        scene.collection.objects.link(obj)
     return obj
+
+
+# ----------------------------------------------------------------------------------------------------
+# Converted strips: a scene per clip, shown in the Sequencer by a scene strip
+
+PREVIEW_SHADING = "RENDERED"  # the Sequencer previews scene strips with their render engine (HyperGS)
+MAX_CHANNEL = 128  # the Sequencer's last channel
+
+
+def add_strip_scene(sequencer_scene, strip, video: GaussianVideo, *, undo: Undo, **settings):
+    """Put the clip converted from a movie or image strip back into the edit: a new scene holding the
+    clip object (HyperGS engine, the clip's resolution, the Sequencer's frame rate, one scene frame per
+    clip frame from frame 1), played by a scene strip with the original strip's timing on the first
+    free channel above it; the original strip is muted (kept, so the conversion can be undone by
+    hand). Everything made is registered with `undo`. Returns (clip object, scene strip)."""
+    editor = sequencer_scene.sequence_editor
+    first, end = strip_range(strip)
+    scene = bpy.data.scenes.new(strip.name)
+    undo.made(bpy.data.scenes, scene)
+    r, sr = scene.render, sequencer_scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = video.canvas_width, video.canvas_height, 100
+    r.fps, r.fps_base = sr.fps, sr.fps_base
+    scene.frame_start, scene.frame_end = 1, max(1, video.num_frames)
+    obj = create_clip_object(scene.collection, strip.name, video, frame_start=1, speed=1.0, undo=undo, **settings)
+    prepare_scene(scene, undo)
+    siblings = strip_siblings(editor, strip)
+    channel = free_channel(siblings, first, end, strip.channel + 1)
+    if channel > MAX_CHANNEL:
+        raise HyperGSError(f"no free Sequencer channel above '{strip.name}' for its frames {first}-{end - 1}")
+    scene_strip = siblings.new_scene(name=scene.name, scene=scene, channel=channel, frame_start=first)
+    undo.call(lambda: siblings.remove(scene_strip))
+    was_muted = strip.mute
+    strip.mute = True  # the movie would cover the scene strip's picture otherwise (or show under it)
+    undo.call(lambda: setattr(strip, "mute", was_muted))
+    return obj, scene_strip
+
+
+def free_channel(strips, first: int, end: int, lowest: int) -> int:
+    """The lowest channel >= `lowest` where no strip of `strips` shows a frame of [first, end)."""
+    taken = {s.channel for s in strips if strip_range(s)[0] < end and first < strip_range(s)[1]}
+    channel = lowest
+    while channel in taken:
+        channel += 1
+    return channel
+
+
+def sequencer_preview_rendered(sequencer_scene, undo: Undo) -> list[str]:
+    """Make the Sequencer preview scene strips with their render engine (else it shows them in Solid
+    mode: the clip's points, not its picture); returns what was changed, to tell the user."""
+    render = sequencer_scene.render
+    was = render.sequencer_gl_preview
+    if was == PREVIEW_SHADING:
+        return []
+    render.sequencer_gl_preview = PREVIEW_SHADING
+    undo.call(lambda: setattr(render, "sequencer_gl_preview", was))
+    return ["Sequencer preview of scene strips to Rendered (so they show the Gaussians)"]

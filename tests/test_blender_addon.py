@@ -1,11 +1,13 @@
 """The extension in the real bpy 5.0.1 wheel: install the built zip into a throw-away user directory,
-convert a movie strip, render with F12, edit points, Geometry Nodes, save/reload, errors, cancel.
+import a movie as Gaussians, render with F12, edit points, Geometry Nodes, save/reload, errors, cancel.
+(The Sequencer's conversion: test_blender_sequencer.py.)
 
 bpy can be imported once per process, so one Blender session runs in a subprocess (this file run as
 a script, with torch and numba made unimportable, as in Blender's own Python) and writes what it
 measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
 $HYPERGS_BLENDER_PYTHON runs the session with another Python that has bpy (e.g. bpy 4.2 LTS).
 """
+import importlib
 import os
 import sys
 from pathlib import Path
@@ -13,14 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import make_pan_clip, run_blender_session, step
+from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP_NAME = "pan"  # the session's movie: a 432 x 240, 70-frame pan that conftest.make_pan_clip writes
 # The encoder the session converts with: the bundled network (HYPERGS_ENCODER=floor for the no-learning floor).
 ENCODER = "bundled"
-CELL = 10.0  # source pixels per Gaussian: 43 x 24 cells on the 432 x 240 clip
-GAUSSIANS = 43 * 24
-RENDER_FRAMES = (1, 35, 70)  # scene frames; the strip starts at frame 1, so source index = frame - 1
+REQUESTED = 1000  # Gaussians per frame asked for (Quality: Custom) ...
+GAUSSIANS = plan_layout(432, 240, FloorEncoder.stride, gaussians=REQUESTED).count  # ... what that gives at 432 x 240
+REENCODED = plan_layout(432, 240, FloorEncoder.stride, gaussians=500).count
+SAMPLE_DRAFT = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY["draft"]["cell"]).count
+RENDER_FRAMES = (1, 35, 70)  # scene frames; the clip starts at frame 1, so source index = frame - 1
 SIZES = ((256, 256), (864, 480))
 PSNR_MARGIN = 0.3  # dB the F12 render may lose to the core's own encode -> render (8-bit PNG, dither)
 SESSION_TIMEOUT = 600
@@ -63,6 +68,28 @@ def test_bundled_network_loads_without_torch_or_says_why(session):
         assert r["problem"].startswith("HyperGSError") and r["raised"] and r["unchanged"], r
 
 
+def test_preferences_choose_the_execution_provider_and_threads(session):
+    r = step(session, "providers")
+    assert r["defaults"] == ["AUTO", 0] and "CPUExecutionProvider" in r["available"]
+    # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
+    assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
+    assert r["policy"] == [["CUDAExecutionProvider", "CPUExecutionProvider"], ["CPUExecutionProvider"],
+                           ["CPUExecutionProvider"], ["CoreMLExecutionProvider", "CPUExecutionProvider"],
+                           ["DmlExecutionProvider", "CPUExecutionProvider"]]
+    assert r["preferences_drawn"]
+
+
+def test_import_dialog_gaussians_follow_the_resolution(session):
+    r = step(session, "import_dialog")
+    standard = QUALITY["standard"]["cell"]
+    for name, (w, h) in (("pan", (432, 240)), ("sample", (256, 144))):
+        count = plan_layout(w, h, FloorEncoder.stride, cell=standard).count
+        assert any(line.startswith(f"{count:,} Gaussians per frame") and f"at {w} x {h}" in line
+                   for line in r[name]["labels"]), r[name]
+    assert any(line.startswith("30 frames") for line in r["sample"]["labels"])  # frames 11-40
+    assert r["reversed_range"] == ["Last Frame 5 comes before First Frame 10"]
+
+
 def test_cancelled_import_changes_nothing(session):
     r = step(session, "cancel")
     assert r["result"] == ["CANCELLED"]
@@ -73,22 +100,25 @@ def test_cancelled_import_changes_nothing(session):
 def test_import_video(session):
     r = step(session, "import_video")
     assert r["result"] == ["FINISHED"]
-    assert (r["num_frames"], r["gaussians_per_frame"], r["grid"]) == (60, 510, [30, 17])  # about 500 on 256 x 144
+    # Quality Draft, source frames 11-40: the Gaussians per frame follow the video's 256 x 144.
+    assert (r["num_frames"], r["source_start"], r["gaussians_per_frame"]) == (30, 10, SAMPLE_DRAFT)
+    assert r["quality"] == "DRAFT"  # the clip's Re-encode starts from the options used
     assert r["frame_start"] == r["scene_frame_start"] and r["active"] == "sample"
     assert r["camera"] == "HyperGS Camera"  # F12 needs one; the scene had none
-    assert r["display_points"] in (None, 510)
+    assert r["display_points"] in (None, SAMPLE_DRAFT)
 
 
-def test_convert_strip_keeps_timing(session):
-    r = step(session, "convert")
+def test_imported_clip_shows_one_frame_at_a_time(session):
+    r = step(session, "clip")
     assert r["result"] == ["FINISHED"]
     assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == 70 * GAUSSIANS
     assert r["frame_start"] == 1 and r["canvas"] == [432, 240] and r["fps"] == pytest.approx(24)
     assert r["evaluated_vertices"] == GAUSSIANS
-    assert r["strip_muted"] and r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
-    assert not r["use_sequencer"]  # Blender 4.2 renders muted strips (black) instead of the scene
+    assert r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
     assert r["attributes"] == {"color": "FLOAT_COLOR", "frame": "INT", "rotation": "FLOAT", "scale": "FLOAT2"}
     assert r["psnr"] > 10 and abs(r["psnr"] - r["reference_psnr"]) < 1.0
+    # What ran, shown in the panel and the report.
+    assert r["encoder"] == ("floor" if os.environ.get("HYPERGS_ENCODER") == "floor" else "network-onnx on CPU (all cores)")
     assert r["display_points"] in (None, GAUSSIANS)  # a point cloud shows the frame in Solid mode
 
 
@@ -147,8 +177,8 @@ def test_edit_current_frame_shows_only_that_frame(session):
 def test_reencode_replaces_points_and_keeps_modifiers(session):
     r = step(session, "reencode")
     assert r["result"] == ["FINISHED"]
-    assert (r["vertices"], r["gaussians_per_frame"], r["grid"]) == (70 * 1620, 1620, [54, 30])  # cells of 8 px
-    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, 1620)
+    assert (r["vertices"], r["gaussians_per_frame"]) == (70 * REENCODED, REENCODED)
+    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, REENCODED)
     assert r["psnr"] != r["psnr_before"]
     assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
 
@@ -210,7 +240,7 @@ def run_session(zip_path, work, out_path):
         attempt("text_as_mp4", "notes.mp4", lambda: bpy.ops.hypergs.import_video(filepath=str(text)))
         attempt("missing_file", "no such video file",
                 lambda: bpy.ops.hypergs.import_video(filepath=str(Path(work) / "nothing.mp4")))
-        attempt("no_strip", "no active strip", lambda: bpy.ops.hypergs.convert_strip())
+        attempt("no_strip", "no strip selected", lambda: bpy.ops.hypergs.convert_strip())
         editor = scene.sequence_editor_create()
         strips = editor.strips if hasattr(editor, "strips") else editor.sequences
         length = dict(length=10) if bpy.app.version >= (5, 0, 0) else dict(frame_end=11)
@@ -245,6 +275,47 @@ def run_session(zip_path, work, out_path):
             encoder_module._cache.clear()
         return dict(has_onnx=has_onnx, encoder=name, problem=error, raised=raised, unchanged=unchanged)
 
+    @record("providers")
+    def _():
+        encoder_module, prefs_module = _import(addon, "ops.encoder"), _import(addon, "ops.preferences")
+        prefs = bpy.context.preferences.addons[prefs_module.ADDON].preferences
+        defaults = [prefs.device, prefs.threads]
+        prefs.device, prefs.threads = "CUDAExecutionProvider", 1
+        runtime = prefs_module.runtime(bpy.context)
+        saved = os.environ.get("HYPERGS_ENCODER")
+        os.environ["HYPERGS_ENCODER"] = "bundled"
+        try:
+            encoder = encoder_module.make_encoder(runtime)
+            asked = dict(provider=encoder.provider, threads=encoder.session.get_session_options().intra_op_num_threads,
+                         described=encoder_module.describe_encoder(encoder, runtime))
+        finally:
+            os.environ["HYPERGS_ENCODER"] = saved or ""
+            prefs.device, prefs.threads = defaults
+            encoder_module._cache.clear()
+        cuda, dml, coreml, cpu = encoder_module.PROVIDERS
+        policy = [encoder_module.providers_for("AUTO", [cuda, cpu]), encoder_module.providers_for(dml, [cuda, cpu]),
+                  encoder_module.providers_for(cpu, [coreml, cpu]), encoder_module.providers_for("AUTO", [coreml, cpu]),
+                  encoder_module.providers_for(dml, [cuda, dml, cpu])]
+        layout = Recorder()
+        type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
+        return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
+                    policy=policy, preferences_drawn=[list(c) for c in layout.calls])
+
+    @record("import_dialog")
+    def _():
+        op = bpy.types.HYPERGS_OT_import_video
+        out = {}
+        for name, path, frames in (("pan", CLIP, {}), ("sample", job.SAMPLE, dict(first_frame=11, last_frame=40)),
+                                   ("reversed", job.SAMPLE, dict(first_frame=10, last_frame=5))):
+            layout = Recorder()
+            options = dict(operator_defaults(bpy, op), filepath=str(path), **frames)
+            namespace = types_namespace(layout=layout, **options)
+            namespace._source = lambda ns=namespace: op._source(ns)
+            op.draw(namespace, bpy.context)
+            out[name] = dict(labels=[c[1] for c in layout.calls if c[0] == "label"])
+        out["reversed_range"] = [c for c in out.pop("reversed")["labels"] if "comes before" in c]
+        return out
+
     @record("cancel")
     def _():
         plan = _import(addon, "hypergs_blender.encode").EncodePlan
@@ -266,7 +337,7 @@ def run_session(zip_path, work, out_path):
             plan.chunks = original
         after = snapshot(bpy)
         jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob(jobs.EncodeRequest(str(CLIP), 500, 1)).start()
+        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, None)]).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
@@ -276,24 +347,25 @@ def run_session(zip_path, work, out_path):
     def _():
         for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
             bpy.data.objects.remove(o)
-        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), gaussian_count=500)
+        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
         obj = bpy.data.objects["sample"]
         s = obj.hypergs
         out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
-                   grid=list(s.grid), frame_start=s.frame_start, scene_frame_start=scene.frame_start,
+                   source_start=s.source_start, quality=s.quality, frame_start=s.frame_start,
+                   scene_frame_start=scene.frame_start,
                    camera=scene.camera.name if scene.camera else None,
                    active=bpy.context.view_layer.objects.active.name,
                    display_points=display_points(bpy, obj))
         bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    strip = job.add_movie_strip(bpy, scene, CLIP, frame_start=1, name=CLIP_NAME)
-    reference = encode_video(str(CLIP), encoder, cell=CELL)
+    reference = encode_video(str(CLIP), encoder, REQUESTED)  # what Quality: Custom asks for
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
-    @record("convert")
+    @record("clip")
     def _():
-        result = bpy.ops.hypergs.convert_strip(cell_size=CELL)
+        scene.frame_start = 1
+        result = bpy.ops.hypergs.import_video(filepath=str(CLIP), quality="CUSTOM", gaussian_count=REQUESTED)
         obj = bpy.data.objects[CLIP_NAME]
         ctx["obj"] = obj
         s = obj.hypergs
@@ -304,12 +376,11 @@ def run_session(zip_path, work, out_path):
         return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
                     vertices=len(obj.data.vertices), frame_start=s.frame_start,
                     canvas=[s.canvas_width, s.canvas_height],
-                    fps=s.fps, evaluated_vertices=len(ev.data.vertices), strip_muted=strip.mute,
-                    use_sequencer=scene.render.use_sequencer,
+                    fps=s.fps, evaluated_vertices=len(ev.data.vertices),
                     engine=scene.render.engine, view_transform=scene.view_settings.view_transform,
                     attributes={a.name: a.data_type for a in obj.data.attributes
                                 if a.name in ("scale", "rotation", "color", "frame")},
-                    psnr=s.psnr, reference_psnr=ref_psnr, seconds=s.encode_seconds,
+                    psnr=s.psnr, reference_psnr=ref_psnr, seconds=s.encode_seconds, encoder=s.encoder,
                     display_points=display_points(bpy, obj))
 
     obj = ctx["obj"]
@@ -475,11 +546,11 @@ def run_session(zip_path, work, out_path):
     def _():
         again = ctx["obj"]
         psnr_before = again.hypergs.psnr
-        again.hypergs.gaussian_count, again.hypergs.cell_size = 0, 8.0
+        again.hypergs.quality, again.hypergs.gaussian_count = "CUSTOM", 500
         result = bpy.ops.hypergs.reencode()
         s = again.hypergs
         return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
-                    grid=list(s.grid), psnr_before=psnr_before, psnr=s.psnr,
+                    psnr_before=psnr_before, psnr=s.psnr,
                     modifiers=[m.name for m in again.modifiers], display_points=display_points(bpy, again),
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
@@ -561,19 +632,25 @@ def attempt_unchanged(bpy, expect, call) -> dict:
 
 
 def snapshot(bpy):
-    """What an operator must not change when it fails or is cancelled."""
-    data = {kind: sorted(x.name for x in getattr(bpy.data, kind))
-            for kind in ("objects", "meshes", "node_groups", "cameras", "materials", "collections", "scenes")}
+    """What an operator must not change when it fails or is cancelled: every datablock collection of
+    bpy.data (names), the scene's settings the add-on touches, its strips, the selection."""
+    data = {}
+    for kind in dir(bpy.data):
+        collection = getattr(bpy.data, kind, None)
+        if isinstance(collection, bpy.types.bpy_prop_collection) and kind not in ("window_managers", "screens"):
+            data[kind] = sorted(x.name_full for x in collection if isinstance(x, bpy.types.ID))
     sc = bpy.context.scene
     editor = sc.sequence_editor
     strips = []
     if editor is not None:
-        all_strips = editor.strips_all if hasattr(editor, "strips_all") else editor.sequences_all
-        strips = sorted((s.name, s.mute, s.frame_start, s.frame_final_duration) for s in all_strips)
+        compat = importlib.import_module("bl_ext.user_default.hypergs.com.compat")
+        strips = sorted((s.name, s.type, s.mute, s.select, s.channel, compat.strip_range(s))
+                        for s in compat.all_strips(editor))
     vs = sc.view_settings
     data["scene"] = dict(engine=sc.render.engine, view=vs.view_transform, look=vs.look, exposure=vs.exposure,
                          gamma=vs.gamma, camera=sc.camera.name if sc.camera else None,
                          frames=[sc.frame_start, sc.frame_end, sc.frame_current], strips=strips,
+                         preview=sc.render.sequencer_gl_preview, use_sequencer=sc.render.use_sequencer,
                          active=bpy.context.view_layer.objects.active.name
                          if bpy.context.view_layer.objects.active else None,
                          selected=sorted(o.name for o in bpy.context.view_layer.objects if o.select_get()))
@@ -582,6 +659,89 @@ def snapshot(bpy):
 
 def diff(a, b):
     return {k: (a.get(k), b.get(k)) for k in set(a) | set(b) if a.get(k) != b.get(k)}
+
+
+class Recorder:
+    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
+
+    def __init__(self, calls=None, attributes=None):
+        self.__dict__["calls"] = [] if calls is None else calls
+        self.__dict__["attributes"] = {} if attributes is None else attributes
+
+    def __setattr__(self, name, value):  # alert, use_property_split, operator_context, ...
+        self.attributes[name] = value
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            if name in ("label", "operator"):
+                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
+            elif name == "prop":
+                self.calls.append((name, args[1], None))
+            return Recorder(self.calls, self.attributes)
+        return call
+
+
+def types_namespace(**kwargs):
+    from types import SimpleNamespace
+    return SimpleNamespace(**kwargs)
+
+
+def operator_defaults(bpy, operator_class) -> dict:
+    """{property: default} of an operator class (what its dialog starts from)."""
+    module, name = operator_class.bl_idname.split(".")
+    properties = getattr(getattr(bpy.ops, module), name).get_rna_type().properties
+    return {p.identifier: p.default for p in properties
+            if p.identifier != "rna_type" and hasattr(p, "default") and not getattr(p, "is_array", False)}
+
+
+def viewport_texture_check(bpy, addon):
+    """The viewport's upload path (numpy -> GPU texture -> drawn) inside a render with a GPU context:
+    Blender has no window here, so view_draw itself cannot run; this checks what it draws with."""
+    import gpu
+    draw = _import(addon, "engine.draw")
+    found = {}
+
+    class Probe(bpy.types.RenderEngine):
+        bl_idname = "HYPERGS_TEST_PROBE"
+        bl_label = "probe"
+        bl_use_gpu_context = True
+
+        def render(self, depsgraph):
+            try:
+                rng = np.random.default_rng(0)
+                rgba = rng.uniform(0, 1, (24, 40, 4)).astype(np.float32)
+                texture = draw.make_texture(rgba)
+                offscreen = gpu.types.GPUOffScreen(40, 24, format="RGBA32F")
+                with offscreen.bind():
+                    from gpu_extras.presets import draw_texture_2d
+                    from mathutils import Matrix
+                    fb = gpu.state.active_framebuffer_get()
+                    fb.clear(color=(0, 0, 0, 0))
+                    with gpu.matrix.push_pop():
+                        gpu.matrix.load_matrix(Matrix.Identity(4))
+                        gpu.matrix.load_projection_matrix(Matrix.Identity(4))
+                        gpu.matrix.translate((-1, -1))
+                        gpu.matrix.scale((2 / 40, 2 / 24))
+                        draw_texture_2d(texture, (0, 0), 40, 24)
+                    pixels = np.array(fb.read_color(0, 0, 40, 24, 4, 0, "FLOAT").to_list(), np.float32)
+                offscreen.free()
+                found["max_error"] = float(np.abs(pixels.reshape(24, 40, 4) - rgba).max())
+            except Exception as e:  # no GPU context on this machine
+                found["skipped"] = f"no GPU drawing here: {type(e).__name__}: {e}"
+            result = self.begin_result(0, 0, 4, 4)
+            self.end_result(result)
+
+    bpy.utils.register_class(Probe)
+    sc = bpy.context.scene
+    engine = sc.render.engine
+    sc.render.engine = Probe.bl_idname
+    sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = 4, 4, 100
+    try:
+        bpy.ops.render.render()
+    finally:
+        sc.render.engine = engine
+        bpy.utils.unregister_class(Probe)
+    return found or {"skipped": "the probe engine did not run"}
 
 
 if __name__ == "__main__":

@@ -36,12 +36,22 @@ def test_manifest(manifest):
     assert "network" not in manifest["permissions"]
     assert sorted(manifest["platforms"]) == sorted(PLATFORMS)
     tags = [build_extension.wheel_tags(w) for w in manifest["wheels"]]
-    for package in ("onnxruntime", "av"):
-        plats = {t[4] for t in tags if t[0] == package}
-        assert any(p.startswith("manylinux") and p.endswith("x86_64") for p in plats), package
-        assert "win_amd64" in plats, package
-        assert any(p.startswith("macosx") and p.endswith("arm64") for p in plats), package
+    for package in ("onnxruntime", "av", "constriction"):
+        for plat in ("manylinux", "win_amd64", "macosx"):
+            # Blender 4.2-5.0 run Python 3.11, 5.1 and later 3.13: every platform has a wheel for each
+            # (an abi3 wheel serves both, but only a cp313 tag makes Blender accept the extension on 3.13).
+            pythons = {build_extension.python_version(t[2]) for t in tags if t[0] == package and plat in t[4]}
+            abi3 = {t[3] for t in tags if t[0] == package and plat in t[4]} == {"abi3"}
+            assert pythons == {"3.11", "3.13"} or (abi3 and pythons == {"3.11"}), (package, plat, pythons)
         assert len({t[1] for t in tags if t[0] == package}) == 1, f"one {package} version"
+    assert any(t[0] == "onnxruntime" and t[2] == "cp313" for t in tags)
+
+
+def test_wheel_python_version():
+    assert build_extension.python_version("cp311") == "3.11"
+    assert build_extension.python_version("cp313") == "3.13"
+    with pytest.raises(build_extension.BuildError):
+        build_extension.python_version("pp3")
 
 
 def test_build_and_validate(zips):
@@ -86,10 +96,10 @@ def test_zip_contents(zips):
         top = name.split("/")[0]
         assert top not in {".venv", "tests", "data", "runs", "docs", "tools", ".git", ".ci", "dist"}, name
         assert "__pycache__" not in name and not name.endswith(".pyc"), name
-    assert sum(n.startswith("wheels/") for n in names) == 6
+    assert sum(n.startswith("wheels/") for n in names) == 15
     linux = next(z for z in split if z.stem.endswith("linux_x64"))
     wheels = [n for n in zipfile.ZipFile(linux).namelist() if n.startswith("wheels/")]
-    assert len(wheels) == 2 and all("manylinux" in w for w in wheels)
+    assert len(wheels) == 5 and all("manylinux" in w for w in wheels)
 
 
 def test_build_is_idempotent(tmp_path):

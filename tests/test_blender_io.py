@@ -14,11 +14,15 @@ import pytest
 from conftest import run_blender_session, step
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import _import, attempt_unchanged, diff, read_mesh, snapshot  # noqa: E402
+from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, read_mesh, snapshot,  # noqa: E402
+                                types_namespace)
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
 SEQUENCE = 6  # PNG frames written for the image-sequence tests
+# Gaussian video files an import must refuse with a one-line message naming the file, changing nothing.
+BAD_FILES = ("negative_canvas.npz", "zero_gaussians.npz", "no_canvas.npz", "not_a_zip.npz", "truncated.npz",
+             "garbage.hgs", "garbage.usda")
 SESSION_TIMEOUT = 300
 
 
@@ -88,14 +92,28 @@ def test_panel_shows_the_linked_file(session):
 
 
 @pytest.mark.parametrize("case", ["deleted", "corrupted", "truncated"])
-def test_broken_linked_file_renders_black_with_a_warning(session, case):
+def test_broken_linked_file_stops_a_command_line_render(session, case):
     r = step(session, "broken")[case]
-    assert r["render"] == ["FINISHED"] and r["black"], r
     assert r["expect"] in r["problem"], r["problem"]
+    # Background mode is a command-line render: nobody would see black frames, so the render stops.
+    assert r["strict"]["raised"] and r["problem"] in r["strict"]["message"], r["strict"]
+    assert "Render Missing Clips Black" in r["strict"]["message"] and not r["strict"]["written"]
     assert r["panel_error"] and r["panel_error"] in r["problem"]  # the panel shows it
-    assert f"HyperGS: 'linked': {r['problem']}" in session["console"]  # the render's warning
     assert r["unchanged"], r["diff"]
     assert r["restored_matches"]  # the file back: it renders again, the scene is fine
+
+
+@pytest.mark.parametrize("case", ["deleted", "corrupted", "truncated"])
+def test_broken_linked_file_renders_black_when_the_scene_allows_it(session, case):
+    r = step(session, "broken")[case]
+    assert r["allowed"]["render"] == ["FINISHED"] and r["allowed"]["black"], r["allowed"]
+    assert f"HyperGS: 'linked': {r['problem']}; the clip renders nothing" in session["console"]  # the warning
+
+
+def test_only_unattended_renders_stop_for_a_missing_clip(session):
+    # (is_animation, background, allow black) -> stops; an interactive F12 (neither) only warns.
+    assert step(session, "broken")["policy"] == [[False, False, False, False], [True, False, False, True],
+                                                 [False, True, False, True], [True, True, True, False]]
 
 
 def test_embed_export_link_switch_storage(session):
@@ -116,6 +134,35 @@ def test_io_errors_are_reported_and_change_nothing(session, case):
     assert r["unchanged"], r["diff"]
 
 
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_failed_import_names_the_file_and_leaves_every_datablock(session, case):
+    r = step(session, "bad_files")[case]
+    assert r["raised"], r
+    message = r["message"].removeprefix("Error: ").strip()
+    assert r["expect"] in message and not message.startswith(("KeyError", "ValueError", "BadZipFile")), message
+    assert "Traceback" not in message and "\n" not in message  # one line
+    assert r["unchanged"], r["diff"]  # every collection of bpy.data (and the scene) exactly as before
+
+
+def test_linked_file_is_read_lazily(session):
+    r = step(session, "lazy")
+    assert r["panel_read"] < 0.05 * r["file_bytes"], r  # drawing the panel: header and frame index only
+    assert r["frame_read"] < 0.25 * r["file_bytes"], r  # one frame: its group of frames only
+    assert r["frame_matches"] and r["handles_open"] == 0
+    assert r["panel_read_again"] == 0  # unchanged file: a stat, no read
+
+
+def test_linked_paths_are_relative_to_the_blend(session):
+    r = step(session, "paths")
+    assert r["supports_relative"] == r["blender_has_the_option"]  # 4.5+: no red `//` warning in the panel
+    assert r["linked_when_saved"] == "//clip.hgs"  # linking in a saved .blend stores it relative
+    assert r["absolute_after_save"] == "//../linked.hgs"  # a save makes an absolute path relative
+    assert r["moved"] == dict(path="//clip.hgs", problem=None, matches=True)  # the project folder moved
+    assert r["save_as_subfolder"] == dict(path="//../clip.hgs", problem=None, matches=True)
+    assert r["save_copy_keeps_open_file"] == "//../clip.hgs" and r["copy_stored"] == "//../moved/clip.hgs"
+    assert r["typed"] == dict(path="//../clip.hgs", problem=None)
+
+
 def test_import_video_reads_an_image_sequence(session):
     r = step(session, "import_sequence")
     for case in ("file", "pattern"):
@@ -128,7 +175,8 @@ def test_import_video_reads_an_image_sequence(session):
 def test_image_strip_converts_keeping_its_timing(session):
     r = step(session, "image_strip")
     assert r["result"] == ["FINISHED"] and r["muted"]
-    assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 11  # trimmed by one at the start
+    assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 1  # the clip's scene counts from 1
+    assert r["scene_strip"] == ["SCENE", 11, 11 + SEQUENCE - 1]  # trimmed by one at the start
     assert r["source"].endswith("frame_0001.png") and r["source_start"] == 1  # re-encode reads the same
     assert r["max_error_vs_core"] < 5e-5  # its clip frame 0 is the sequence's second image
     assert r["still_image"]["raised"] and "single image" in r["still_image"]["message"]
@@ -201,11 +249,12 @@ def run_session(zip_path, work, out_path):
             if o.type == "MESH":
                 o.hide_render = o not in show
         png = work / f"{name}.png"
-        scene.frame_set(frame)
-        scene.render.image_settings.file_format = "PNG"
-        scene.render.image_settings.color_depth = "8"
-        scene.render.image_settings.color_mode = "RGB"
-        scene.render.filepath = str(png)
+        sc = bpy.context.scene  # (not `scene`: the paths step opens other .blend files)
+        sc.frame_set(frame)
+        sc.render.image_settings.file_format = "PNG"
+        sc.render.image_settings.color_depth = "8"
+        sc.render.image_settings.color_mode = "RGB"
+        sc.render.filepath = str(png)
         result = bpy.ops.render.render(write_still=True)
         return job.read_png(bpy, png), sorted(result)
 
@@ -342,18 +391,30 @@ def run_session(zip_path, work, out_path):
         for case, (breaker, expect) in breakers.items():
             breaker()
             before = snapshot(bpy)
-            image, result = render(4, f"broken_{case}", [lobj])
+            png = work / f"broken_{case}.png"
+            try:
+                render(4, png.stem, [lobj])
+                strict = dict(raised=False, message="")
+            except RuntimeError as e:
+                strict = dict(raised=True, message=str(e))
+            strict["written"] = png.is_file()
             after = snapshot(bpy)
+            scene.hypergs.allow_missing_clips = True
+            image, result = render(4, f"allowed_{case}", [lobj])
+            scene.hypergs.allow_missing_clips = False
             problem = linked.problem(str(hgs)) or ""
             shown = [c for c in panel_draw(lobj) if c[0] == "label" and c[2] == "ERROR"]
             hgs.write_bytes(pristine)
             again, _ = render(4, f"restored_{case}", [lobj])
-            out[case] = dict(render=result, black=bool(image.max() == 0), problem=problem, expect=expect,
-                             panel_error=shown[0][1] if shown else None,
+            out[case] = dict(strict=strict, allowed=dict(render=result, black=bool(image.max() == 0)),
+                             problem=problem, expect=expect, panel_error=shown[0][1] if shown else None,
                              unchanged=before == after, diff=diff(before, after),
                              restored_matches=bool(np.abs(again - reference).max() == 0))
         out["panel_fine"] = panel_draw(lobj)
         out["panel_embedded"] = panel_draw(eobj)
+        stop = _import(addon, "engine").missing_clips_stop
+        out["policy"] = [[*case, stop(*case)] for case in ((False, False, False), (True, False, False),
+                                                             (False, True, False), (True, True, True))]
         return out
 
     @record("storage")
@@ -395,6 +456,64 @@ def run_session(zip_path, work, out_path):
                                        lambda: bpy.ops.hypergs.export_clip(filepath=str(work / "x.usd"), link=True)),
         }
 
+    @record("bad_files")
+    def _():
+        import json
+        good = dict(version=1, canvas=[64, 48], fps=24.0, grid=[1, 1], source={})
+
+        def npz(name, params, meta):
+            with open(work / name, "wb") as f:
+                np.savez(f, params=params, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
+
+        npz("negative_canvas.npz", params[:3], dict(good, canvas=[-64, 48]))
+        npz("zero_gaussians.npz", params[:3, :0], good)
+        npz("no_canvas.npz", params[:3], {k: v for k, v in good.items() if k != "canvas"})
+        (work / "not_a_zip.npz").write_text("these are not the Gaussians you are looking for\n")
+        (work / "truncated.npz").write_bytes((work / "orig.npz").read_bytes()[:300])
+        (work / "garbage.hgs").write_bytes(bytes(range(256)) * 8)
+        (work / "garbage.usda").write_text("#usda 1.0\ndef Points \"p\" { point3f[] points = [(1, 2)] }\n")
+        return {name: attempt(name, lambda: bpy.ops.hypergs.import_clip(filepath=str(work / name)))
+                for name in BAD_FILES}
+
+    @record("lazy")
+    def _():
+        from hypergs_blender.io.hgs import save_hgs
+        rng = np.random.default_rng(1)
+        big = GaussianVideo(np.tile(params, (8, 1, 1)) + rng.normal(0, 0.01, (8 * T, N, 8)).astype(np.float32),
+                            *CANVAS, 30.0)
+        big.params[..., 2:4] = np.abs(big.params[..., 2:4])
+        path = work / "lazy.hgs"
+        save_hgs(big, path, group_size=4)  # 20 groups of frames
+        bpy.ops.hypergs.import_clip(filepath=str(path), link=True)
+        obj = bpy.context.view_layer.objects.active
+        counting = linked._FileOnDemand
+        read = counting.read
+        counted = []
+
+        def counted_read(self, size=-1):
+            data = read(self, size)
+            counted.append(len(data))
+            return data
+        counting.read = counted_read
+        try:
+            linked.forget()
+            panel_draw(obj)  # the panel opens the file: header and index
+            panel_read = sum(counted)
+            counted.clear()
+            panel_draw(obj)
+            panel_read_again = sum(counted)
+            counted.clear()
+            frame, _, _ = linked.read_frame(str(path), 37)
+            frame_read = sum(counted)
+        finally:
+            counting.read = read
+        fd = Path("/proc/self/fd")
+        handles = sum(1 for f in fd.iterdir() if os.path.realpath(f) == str(path)) if fd.is_dir() else 0
+        bpy.data.meshes.remove(obj.data)
+        return dict(file_bytes=path.stat().st_size, panel_read=panel_read, panel_read_again=panel_read_again,
+                    frame_read=frame_read, frame_matches=bool(np.allclose(frame, load_hgs(path).params[37])),
+                    handles_open=handles)
+
     for o in list(bpy.data.objects):
         if o.type == "MESH":
             bpy.data.meshes.remove(o.data)
@@ -418,7 +537,7 @@ def run_session(zip_path, work, out_path):
     def _():
         out = {}
         for case, path in (("file", folder / "frame_0003.png"), ("pattern", folder / "frame_####.png")):
-            result = bpy.ops.hypergs.import_video(filepath=str(path), gaussian_count=250)
+            result = bpy.ops.hypergs.import_video(filepath=str(path), quality="CUSTOM", gaussian_count=250)
             obj = bpy.context.view_layer.objects.active
             out[case] = dict(result=sorted(result), name=obj.name.split(".")[0], num_frames=obj.hypergs.num_frames,
                              fps=obj.hypergs.fps, max_error_vs_core=compare(obj, 0))
@@ -432,44 +551,78 @@ def run_session(zip_path, work, out_path):
         strip = strips.new_image(name="seq", filepath=str(folder / "frame_0001.png"), channel=2, frame_start=10)
         for i in range(2, SEQUENCE + 1):
             strip.elements.append(f"frame_{i:04d}.png")
-        strip.frame_offset_start = 1  # trimmed: the strip starts at scene frame 11 with the second image
-        editor.active_strip = strip
-        result = bpy.ops.hypergs.convert_strip(gaussian_count=250)
+        compat = _import(addon, "com.compat")
+        if hasattr(strip, "left_handle_offset"):  # trimmed: the strip starts at scene frame 11 with the second image
+            strip.left_handle_offset = 1
+        else:
+            strip.frame_offset_start = 1
+
+        def select(chosen):
+            for s in compat.all_strips(editor):
+                s.select = s == chosen
+            editor.active_strip = chosen
+        select(strip)
+        result = bpy.ops.hypergs.convert_strip(quality="CUSTOM", gaussian_count=250)
         obj = bpy.data.objects["seq"]
         s = obj.hypergs
+        scene_strip = editor.active_strip
         still = strips.new_image(name="still", filepath=str(folder / "frame_0001.png"), channel=3, frame_start=1)
-        editor.active_strip = still
-        still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip(gaussian_count=250))
+        select(still)
+        still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip())
         return dict(result=sorted(result), muted=strip.mute, num_frames=s.num_frames, frame_start=s.frame_start,
+                    scene_strip=[scene_strip.type, *compat.strip_range(scene_strip)],
                     source=s.source, source_start=s.source_start, max_error_vs_core=compare(obj, 1),
                     still_image=still_image)
 
+    @record("paths")
+    def _():
+        for o in list(bpy.data.objects):
+            if o.type == "MESH":
+                bpy.data.meshes.remove(o.data)
+        project = work / "project"
+        project.mkdir()
+        shutil.copy(hgs, project / "clip.hgs")
+        option = "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties
+        prop = bpy.types.Object.bl_rna.properties["hypergs"].fixed_type.bl_rna.properties["linked_path"]
+        supports = bool(getattr(prop, "is_path_supports_blend_relative", False))
+        bpy.ops.hypergs.import_clip(filepath=str(hgs), link=True)  # in an unsaved file: absolute
+        bpy.context.view_layer.objects.active.name = "absolute"
+        bpy.ops.wm.save_as_mainfile(filepath=str(project / "scene.blend"))
+        bpy.ops.hypergs.import_clip(filepath=str(project / "clip.hgs"), link=True)
+        bpy.context.view_layer.objects.active.name = "relative"
+        out = dict(supports_relative=supports, blender_has_the_option=option,
+                   absolute_after_save=bpy.data.objects["absolute"].hypergs.linked_path,
+                   linked_when_saved=bpy.data.objects["relative"].hypergs.linked_path)
+        bpy.ops.wm.save_mainfile()
+        expected, _ = render(4, "paths_expected", [bpy.data.objects["relative"]])
+
+        def state(name="relative"):
+            obj = bpy.data.objects[name]
+            image, _ = render(4, f"paths_{len(out)}", [obj])
+            return dict(path=obj.hypergs.linked_path, problem=linked.problem(bpy.path.abspath(obj.hypergs.linked_path)),
+                        matches=bool(np.abs(image - expected).max() == 0))
+
+        moved = work / "moved"
+        shutil.copytree(project, moved)
+        shutil.rmtree(project)  # the old location is gone: only the relative path can find the clip
+        bpy.ops.wm.open_mainfile(filepath=str(moved / "scene.blend"))
+        out["moved"] = state()
+        (moved / "sub").mkdir()
+        bpy.ops.wm.save_as_mainfile(filepath=str(moved / "sub" / "scene.blend"))
+        out["save_as_subfolder"] = state()
+        (work / "copies").mkdir()
+        bpy.ops.wm.save_as_mainfile(filepath=str(work / "copies" / "copy.blend"), copy=True)
+        out["save_copy_keeps_open_file"] = bpy.data.objects["relative"].hypergs.linked_path
+        bpy.ops.wm.open_mainfile(filepath=str(work / "copies" / "copy.blend"))
+        out["copy_stored"] = bpy.data.objects["relative"].hypergs.linked_path
+        bpy.ops.wm.open_mainfile(filepath=str(moved / "sub" / "scene.blend"))
+        obj = bpy.data.objects["relative"]
+        obj.hypergs.linked_path = "//../clip.hgs"  # typed in the panel
+        out["typed"] = dict(path=obj.hypergs.linked_path, problem=linked.problem(bpy.path.abspath(obj.hypergs.linked_path)))
+        return out
+
     shutil.rmtree(work / "user", ignore_errors=True)
     return results
-
-
-class Recorder:
-    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
-
-    def __init__(self, calls=None):
-        self.__dict__["calls"] = [] if calls is None else calls
-
-    def __setattr__(self, name, value):  # alert, use_property_split, ...
-        pass
-
-    def __getattr__(self, name):
-        def call(*args, **kwargs):
-            if name in ("label", "operator"):
-                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
-            elif name == "prop":
-                self.calls.append((name, args[1], None))
-            return Recorder(self.calls)
-        return call
-
-
-def types_namespace(**kwargs):
-    from types import SimpleNamespace
-    return SimpleNamespace(**kwargs)
 
 
 if __name__ == "__main__":

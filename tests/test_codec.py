@@ -237,6 +237,8 @@ def test_clip_packed_as_bytes_reads_like_a_file(tmp_path):
         assert reader.num_frames == 5 and reader.read_frame(3).shape == (30, 8)
     with pytest.raises(HgsError, match="checksum"):
         load_hgs(data[:100] + bytes([data[100] ^ 1]) + data[101:])
+    with open(tmp_path / "c.hgs", "rb") as f, HgsReader(f) as reader:  # a file object, named in errors
+        assert reader.path.name == "c.hgs" and np.array_equal(reader.read_frame(4), load_hgs(data).params[4])
 
 
 def test_streaming_writer_with_default_ranges(tmp_path):

@@ -115,3 +115,18 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     assert exit_info.value.code == 1
     assert "notes.mp4" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob("clip.hgs*"))
+
+
+def test_estimate_scales_with_gaussians_frames_and_refine_steps():
+    from hypergs_blender.encode import ENCODE_COSTS, estimate, plan_layout
+    small, large = plan_layout(432, 240, 4, cell=8.0), plan_layout(864, 480, 4, cell=8.0)
+    assert large.count == 4 * small.count
+    a, b = estimate(small, 10), estimate(large, 10)
+    assert b.seconds == pytest.approx(4 * a.seconds) and b.blend_bytes == 4 * a.blend_bytes
+    assert estimate(small, 20).hgs_bytes == 2 * a.hgs_bytes
+    cost = ENCODE_COSTS["network"]
+    assert a.blend_bytes == small.count * 10 * cost.blend_bytes_per_gaussian
+    refined = estimate(small, 10, refine=30)
+    step = cost.refine_first_s_per_gaussian + 29 * cost.refine_s_per_gaussian_step
+    assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step)
+    assert estimate(small, 10, encoder="floor").seconds < a.seconds  # the network costs more

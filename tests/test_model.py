@@ -169,3 +169,15 @@ def test_onnx_matches_torch(tmp_path):
         a, b = onnx.predict(frames), torch_.predict(frames)
         assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
         np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)
+
+
+def test_onnx_session_uses_the_providers_and_threads_asked_for():
+    import onnxruntime as ort
+
+    from hypergs_blender.network import resolve_encoder
+    wanted = ["CUDAExecutionProvider", "CPUExecutionProvider"]  # CUDA where this onnxruntime has it
+    encoder = resolve_encoder("network", "onnx", providers=wanted, threads=1)
+    expected = next(p for p in wanted if p in ort.get_available_providers())
+    assert encoder.provider == expected == encoder.session.get_providers()[0]
+    assert encoder.session.get_session_options().intra_op_num_threads == 1
+    assert resolve_encoder("network", "onnx").provider == "CPUExecutionProvider"  # the default

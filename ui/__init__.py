@@ -11,6 +11,8 @@ from ..com.mesh import linked_file
 from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
                              HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
                              HYPERGS_OT_reencode)
+from ..ops import preferences, quality
+from ..ops.operators import reencode_source
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -35,8 +37,10 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         if s.linked:
             self.draw_linked(obj, layout.box())
         info = layout.column(align=True)
+        cell = (s.canvas_width * s.canvas_height / s.gaussians_per_frame) ** 0.5 if s.gaussians_per_frame else 0
         for label, value in (("Frames", f"{s.num_frames}  ({s.canvas_width} x {s.canvas_height}, {s.fps:.3g} fps)"),
-                             ("Gaussians per Frame", f"{s.gaussians_per_frame}  ({s.grid[0]} x {s.grid[1]} cells)"),
+                             ("Gaussians per Frame", f"{s.gaussians_per_frame:,}  ({s.grid[0]} x {s.grid[1]} "
+                                                     f"cells of {cell:.1f} px)"),
                              ("PSNR", f"{s.psnr:.2f} dB"),
                              ("Encoder", f"{s.encoder}, {s.encode_seconds:.1f} s")):
             row = info.row()
@@ -52,8 +56,7 @@ class HYPERGS_PT_clip(bpy.types.Panel):
             return
         layout.operator(HYPERGS_OT_edit_frame.bl_idname, icon="EDITMODE_HLT")
         box = layout.box()
-        box.prop(s, "gaussian_count")
-        box.prop(s, "cell_size")
+        quality.draw(box, s, lambda: [reencode_source(obj)], preferences.runtime(context))
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
     @staticmethod
@@ -73,6 +76,24 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         box.operator(HYPERGS_OT_embed_clip.bl_idname, icon="IMPORT")
 
 
+class HYPERGS_PT_render(bpy.types.Panel):
+    """Properties > Render > HyperGS: the scene's render settings."""
+    bl_label = "HyperGS"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.render.engine == "HYPERGS"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.hypergs, "allow_missing_clips")
+
+
 def menu_import(self, context):
     self.layout.operator(HYPERGS_OT_import_video.bl_idname, text="Video as Gaussians (.mp4, .mov, ...)")
     self.layout.operator(HYPERGS_OT_import_clip.bl_idname, text="Gaussian Video (.hgs/.usd/.npz)")
@@ -83,12 +104,14 @@ def menu_export(self, context):
 
 
 def menu_strip(self, context):
+    """Strip menu and the strip's context menu: convert the selected movie / image strips."""
     self.layout.separator()
-    self.layout.operator(HYPERGS_OT_convert_strip.bl_idname, icon="MOD_PARTICLES")
+    self.layout.operator_context = "INVOKE_DEFAULT"  # the options dialog
+    self.layout.operator(HYPERGS_OT_convert_strip.bl_idname, text="Convert to Gaussians...", icon="MOD_PARTICLES")
 
 
 MENUS = [("TOPBAR_MT_file_import", menu_import), ("TOPBAR_MT_file_export", menu_export),
-         ("SEQUENCER_MT_strip", menu_strip)]
+         ("SEQUENCER_MT_strip", menu_strip), ("SEQUENCER_MT_context_menu", menu_strip)]
 
 
 def register():
@@ -101,4 +124,4 @@ def unregister():
         getattr(bpy.types, menu).remove(fn)
 
 
-CLASSES = [HYPERGS_PT_clip]
+CLASSES = [HYPERGS_PT_clip, HYPERGS_PT_render]

@@ -5,8 +5,9 @@ The Blender tests drive their sessions with the same helpers.
 
 Building (`build`, also `hypergs build-extension`):
 1. fetches the wheels that `blender_manifest.toml` lists (`wheels = [...]`) into wheels/ with
-   `pip download --no-deps --only-binary=:all: --platform ... --python-version ...`; wheels already
-   there are kept, so re-running costs nothing;
+   `pip download --no-deps --only-binary=:all: --platform ... --python-version ...`, each for the
+   platform and Python version its file name names; wheels already there are kept, so re-running
+   costs nothing;
 2. runs `blender_ext.py build` (from the installed `bpy` wheel, or $BLENDER_EXT) on the repository root;
 3. runs `blender_ext.py validate` on every zip it built.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import json
 import importlib.util
 import os
 import platform
@@ -23,6 +25,7 @@ import sys
 import tempfile
 import time
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +76,15 @@ def wheel_tags(filename: str) -> tuple[str, str, str, str, str]:
     return parts[0], parts[1], parts[-3], parts[-2], parts[-1]
 
 
+def python_version(python_tag: str) -> str:
+    """The Python version a wheel's python tag names: "cp313" -> "3.13" (an abi3 wheel's tag is the
+    oldest version it serves)."""
+    digits = python_tag.removeprefix("cp").removeprefix("py")
+    if not digits.isdigit() or len(digits) < 2:
+        raise BuildError(f"cannot tell the Python version of the wheel tag {python_tag!r}")
+    return f"{digits[0]}.{digits[1:]}"
+
+
 def fetch_wheels(wheels: list[str], quiet: bool = False) -> None:
     """Download every listed wheel missing under the repository root (idempotent)."""
     for rel in wheels:
@@ -81,8 +93,9 @@ def fetch_wheels(wheels: list[str], quiet: bool = False) -> None:
             continue
         target.parent.mkdir(parents=True, exist_ok=True)
         name, version, py, abi, plat = wheel_tags(target.name)
-        cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-               "--platform", plat, "--python-version", "3.11", "--implementation", "cp",
+        platforms = [arg for tag in plat.split(".") for arg in ("--platform", tag)]  # a compound tag: each
+        cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", *platforms,
+               "--python-version", python_version(py), "--implementation", "cp",
                "--abi", abi, "-d", str(target.parent), f"{name}=={version}"]
         if quiet:
             cmd.insert(4, "-q")
@@ -146,7 +159,6 @@ def step_recorder(results: dict, out_path):
     """Decorator factory for test sessions: `@record(name)` runs the step at once and stores its
     result (or its traceback) under `name`, rewriting `out_path` as JSON after every step, so a
     session that dies still reports the steps it finished."""
-    import json
     import traceback
 
     def record(name):
@@ -171,6 +183,12 @@ def start_blender(user_dir, block=("torch", "numba")):
     for name in block:
         sys.modules[name] = None
     import bpy
+    # Blender's own Python has the modules Blender bundles (OpenImageIO, pxr, ... in 5.0 and later) on
+    # its path; the bpy module keeps them inside its package.
+    bundled = (Path(bpy.utils.resource_path("LOCAL")) / "python" / "lib" /
+               f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages")
+    if bundled.is_dir() and str(bundled) not in sys.path:
+        sys.path.append(str(bundled))
     return bpy
 
 
@@ -229,15 +247,27 @@ def psnr(a, b) -> float:
     return float("inf") if mse == 0 else 10 * np.log10(1 / mse)
 
 
+def addon_module(addon, name: str):
+    """A module of the installed extension (`addon`), e.g. "com.compat": reached at run time, so the
+    harness works with whichever Blender's glue the zip installed."""
+    import importlib
+    return importlib.import_module(f"{addon.__name__}.{name}")
+
+
 def main_job(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="The main job: the bundled sample strip converted in Blender, F12 to PNG, PSNR.")
+    parser = argparse.ArgumentParser(description="The main job: the bundled sample strip converted in Blender, "
+                                                 "F12 of the Sequencer's output to PNG, PSNR.")
     parser.add_argument("--video", default=str(SAMPLE), help="video to convert (default: the bundled sample)")
     parser.add_argument("--size", help="render size WxH (default: the video's)")
     parser.add_argument("--frames", help="scene frames to render, comma-separated (default: 5 spread)")
-    parser.add_argument("--gaussians", type=int, default=0, help="Gaussians per frame (default: the cell size's)")
-    parser.add_argument("--cell", type=float, default=None, help="cell size in source pixels (default: the add-on's)")
+    parser.add_argument("--quality", choices=("draft", "standard", "high"), default="standard",
+                        help="the Convert dialog's Quality preset")
+    parser.add_argument("--gaussians", type=int, default=0, help="Gaussians per frame instead of a preset")
+    parser.add_argument("--cell", type=float, default=None, help="cell size in source pixels instead of a preset")
     parser.add_argument("--encoder", choices=("floor", "bundled"),
                         default=os.environ.get("HYPERGS_ENCODER", DEFAULT_ENCODER))
+    parser.add_argument("--zip", help="install this extension zip instead of building one")
+    parser.add_argument("--json", help="also write the figures to this JSON file")
     parser.add_argument("--out", default=str(ROOT / "runs" / "main_job"))
     args = parser.parse_args(argv)
     out = Path(args.out)
@@ -245,47 +275,96 @@ def main_job(argv=None) -> int:
     video = Path(args.video).resolve()
 
     started = time.perf_counter()
-    zip_path = build_zip(ROOT / "dist")
-    print(f"built and validated {zip_path.relative_to(ROOT)} ({zip_path.stat().st_size / 1e6:.0f} MB) "
-          f"in {time.perf_counter() - started:.1f} s")
+    if args.zip:
+        zip_path = Path(args.zip)
+    else:
+        zip_path = build_zip(ROOT / "dist")
+        print(f"built and validated {zip_path.name} ({zip_path.stat().st_size / 1e6:.0f} MB) "
+              f"in {time.perf_counter() - started:.1f} s")
     os.environ["HYPERGS_ENCODER"] = args.encoder
     user_dir = tempfile.mkdtemp(prefix="hypergs-blender-user-")
+    report = dict(python=platform.python_version(), encoder=args.encoder)
     try:
         bpy = start_blender(user_dir)
-        install_extension(bpy, zip_path)
-        print(f"installed into {user_dir} (Blender {bpy.app.version_string}), encoder: {args.encoder}")
-        scene = bpy.context.scene
-        strip = add_movie_strip(bpy, scene, video, name=video.stem)
-        elem = strip.elements[0]
-        width, height = (map(int, args.size.lower().split("x")) if args.size
-                         else (elem.orig_width, elem.orig_height))
-        scene.render.resolution_x, scene.render.resolution_y = width, height
-        scene.render.resolution_percentage = 100
-        scene.frame_start, scene.frame_end = int(strip.frame_final_start), int(strip.frame_final_end) - 1
-        t = time.perf_counter()
-        options = dict(gaussian_count=args.gaussians) | ({"cell_size": args.cell} if args.cell else {})
-        bpy.ops.hypergs.convert_strip(**options)
-        convert_s = time.perf_counter() - t
-        obj = bpy.context.view_layer.objects.active
-        s = obj.hypergs
-        print(f"converted strip '{strip.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "
-              f"in {convert_s:.1f} s (encode-time PSNR {s.psnr:.2f} dB)")
-        if args.frames:
-            frames = [int(f) for f in args.frames.split(",")]
-        else:
-            frames = sorted(set(np.linspace(scene.frame_start, scene.frame_end, 5).round().astype(int).tolist()))
-        offset = s.source_start - s.frame_start  # source frame index = scene frame + offset
-        truth = source_frames(video, [f + offset for f in frames], width, height)
-        values = []
-        print(f"F12 at {width}x{height}:")
-        for f in frames:
-            png = out / f"frame_{f:04d}.png"
-            seconds = render_png(bpy, scene, f, png)
-            value = psnr(read_png(bpy, png), truth[f + offset])
-            values.append(value)
-            shown = png.relative_to(ROOT) if png.is_relative_to(ROOT) else png
-            print(f"  frame {f:4d}: PSNR {value:6.2f} dB  ({seconds:.2f} s)  {shown}")
-        print(f"mean PSNR {np.mean(values):.2f} dB over {len(values)} frames")
+        report["blender"] = bpy.app.version_string
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t = time.perf_counter()
+            addon = install_extension(bpy, zip_path)
+            report["install_s"] = time.perf_counter() - t
+            print(f"installed into {user_dir} (Blender {bpy.app.version_string}, Python {report['python']}), "
+                  f"encoder: {args.encoder}")
+            _main_job_scene(bpy, addon, args, video, out, report)
+        here = str(Path(addon.__file__).parent)
+        report["deprecations"] = sorted({f"{Path(w.filename).relative_to(here)}:{w.lineno}: {w.message}"
+                                         for w in caught if issubclass(w.category, DeprecationWarning)
+                                         and w.filename.startswith(here)})
+        for line in report["deprecations"]:
+            print("deprecated:", line)
     finally:
         shutil.rmtree(user_dir, ignore_errors=True)
+        if args.json:
+            Path(args.json).write_text(json.dumps(report, indent=1))
     return 0
+
+
+def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> None:
+    """Convert the video's strip, then F12 of the Sequencer's output (the scene strip the conversion
+    added plays the clip's scene, rendered by HyperGS) at spread frames, against the source."""
+    compat = addon_module(addon, "com.compat")
+    scene = bpy.context.scene
+    strip = add_movie_strip(bpy, scene, video, name=video.stem)
+    elem = strip.elements[0]
+    width, height = (map(int, args.size.lower().split("x")) if args.size
+                     else (elem.orig_width, elem.orig_height))
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = "Standard"  # as in a video editing file: output = the strips' sRGB
+    first, end = compat.strip_range(strip)
+    scene.frame_start, scene.frame_end = first, end - 1
+    t = time.perf_counter()
+    if args.gaussians or args.cell:
+        options = dict(quality="CUSTOM", gaussian_count=args.gaussians or 0, cell_size=args.cell or 6.0)
+    else:
+        options = dict(quality=args.quality.upper())
+    bpy.ops.hypergs.convert_strip(**options)
+    report["convert_s"] = convert_s = time.perf_counter() - t
+    scene_strip = scene.sequence_editor.active_strip
+    obj = next(o for o in scene_strip.scene.objects if o.hypergs.is_clip)
+    s = obj.hypergs
+    report.update(frames=s.num_frames, gaussians=s.gaussians_per_frame, encode_psnr=s.psnr,
+                  scene_strip=dict(name=scene_strip.name, range=list(compat.strip_range(scene_strip)),
+                                   channel=scene_strip.channel, movie_range=[first, end], movie_muted=strip.mute,
+                                   engine=scene_strip.scene.render.engine))
+    print(f"converted strip '{strip.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "
+          f"in {convert_s:.1f} s (encode-time PSNR {s.psnr:.2f} dB), played by the scene strip "
+          f"'{scene_strip.name}' on channel {scene_strip.channel}")
+    if args.frames:
+        frames = [int(f) for f in args.frames.split(",")]
+    else:
+        frames = sorted(set(np.linspace(scene.frame_start, scene.frame_end, 5).round().astype(int).tolist()))
+    offset = s.source_start - first  # source frame index = scene frame + offset
+    truth = source_frames(video, [f + offset for f in frames], width, height)
+    values, seconds = [], []
+    print(f"F12 of the Sequencer at {width}x{height}:")
+    for f in frames:
+        png = out / f"frame_{f:04d}.png"
+        seconds.append(render_png(bpy, scene, f, png))
+        values.append(psnr(read_png(bpy, png), truth[f + offset]))
+        shown = png.relative_to(ROOT) if png.is_relative_to(ROOT) else png
+        print(f"  frame {f:4d}: PSNR {values[-1]:6.2f} dB  ({seconds[-1]:.2f} s)  {shown}")
+    print(f"mean PSNR {np.mean(values):.2f} dB over {len(values)} frames")
+    report.update(render_frames=frames, psnr=values, render_s=seconds, mean_psnr=float(np.mean(values)))
+    # The clip exported to a .hgs file it is then linked to (the codec's bundled wheels at work): the
+    # Sequencer's F12 shows it as before, up to the file's 8-bit quantization.
+    clip_scene = scene_strip.scene
+    with bpy.context.temp_override(scene=clip_scene, view_layer=clip_scene.view_layers[0], active_object=obj,
+                                   object=obj):
+        bpy.ops.hypergs.export_clip(filepath=str(out / "clip.hgs"), link=True)
+    middle = frames[len(frames) // 2]
+    png = out / f"linked_{middle:04d}.png"
+    render_png(bpy, scene, middle, png)
+    report.update(linked=obj.hypergs.linked, linked_psnr=psnr(read_png(bpy, png), truth[middle + offset]),
+                  embedded_psnr=values[len(frames) // 2])
+    print(f"linked to {out / 'clip.hgs'}: frame {middle} PSNR {report['linked_psnr']:.2f} dB "
+          f"(embedded {report['embedded_psnr']:.2f} dB)")

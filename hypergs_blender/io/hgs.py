@@ -284,10 +284,14 @@ class HgsReader:
     frames of a group in order decodes each frame once. Not thread-safe: one reader per thread."""
 
     def __init__(self, source):
-        """source: a path, or the bytes of a .hgs file (e.g. a clip packed inside a .blend)."""
+        """source: a path, the bytes of a .hgs file (e.g. a clip packed inside a .blend), or a binary
+        file object (read, seek, close; its `name` names it in errors), which the reader then owns."""
         if isinstance(source, (bytes, bytearray, memoryview)):
             self.path = Path("<bytes>")
             self._file = io.BytesIO(bytes(source))
+        elif hasattr(source, "read"):
+            self.path = Path(getattr(source, "name", "<file>"))
+            self._file = source
         else:
             self.path = Path(source)
             try:

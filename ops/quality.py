@@ -1,0 +1,200 @@
+"""The encode options a user chooses and what they mean, in one place: a Quality preset (Draft /
+Standard / High: the core's encode.QUALITY, a cell size in source pixels and refine steps) or Custom
+values (cell size or Gaussian count, refine steps), turned into an EncodeRequest; and what the dialogs
+show before an encode starts: the Gaussians per frame at each source's own resolution (they scale
+with it), the frames, and an estimate of time and size (encode.estimate).
+
+The options are properties of the operators and of a clip's settings (EncodeOptions, a mixin), drawn
+by `draw` in the import file browser's side panel, the Sequencer's Convert dialog and the clip panel.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from bpy.props import EnumProperty, FloatProperty, IntProperty
+
+from ..hypergs_blender.encode import MAX_CELL, QUALITY, estimate, plan_layout
+from ..hypergs_blender.errors import HyperGSError
+from ..hypergs_blender.io.frames import probe
+from .encoder import Runtime, make_encoder
+from .jobs import EncodeRequest
+
+CUSTOM = "CUSTOM"
+
+
+def _preset_item(key: str, name: str) -> tuple[str, str, str]:
+    preset = QUALITY[key]
+    refine = f", refined {preset['refine']} steps" if preset["refine"] else ""
+    return (key.upper(), name, f"One Gaussian per {preset['cell']:g} x {preset['cell']:g} source pixels{refine}")
+
+
+class EncodeOptions:
+    """The encode options (a mixin for operators and the clip settings)."""
+    quality: EnumProperty(
+        name="Quality", default="STANDARD",
+        items=[_preset_item("draft", "Draft"), _preset_item("standard", "Standard"), _preset_item("high", "High"),
+               (CUSTOM, "Custom", "Choose the cell size (or a Gaussian count) and the refine steps")])
+    cell_size: FloatProperty(name="Cell Size", default=QUALITY["standard"]["cell"], min=1.0, soft_min=4.0,
+                             max=MAX_CELL, precision=1, subtype="PIXEL",
+                             description="Source pixels per Gaussian along each side (smaller: more Gaussians, "
+                                         "sharper, slower); the count follows the video's resolution")
+    gaussian_count: IntProperty(name="Gaussians", default=0, min=0, max=10_000_000,
+                                description="Gaussians per frame instead of a cell size (0: from the cell size)")
+    refine_steps: IntProperty(name="Refine Steps", default=0, min=0, max=1000,
+                              description="Steps of per-frame fitting after the network (sharper, much slower; "
+                                          "needs PyTorch)")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What an encode is asked for: `gaussians` per frame or a `cell` size, and `refine` steps."""
+    gaussians: int | None
+    cell: float | None
+    refine: int
+    note: str = ""  # why it differs from the options (refining needs PyTorch)
+
+
+@dataclass(frozen=True)
+class Source:
+    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end)."""
+    name: str
+    path: str
+    start: int = 0
+    stop: int | None = None
+
+
+def settings(options) -> Settings:
+    """The options as the encoder's settings: a preset's cell size and refine steps, or the custom ones."""
+    if options.quality == CUSTOM:
+        gaussians, cell = (options.gaussian_count, None) if options.gaussian_count else (None, options.cell_size)
+        refine = options.refine_steps
+    else:
+        preset = QUALITY[options.quality.lower()]
+        gaussians, cell, refine = None, preset["cell"], preset["refine"]
+    if refine and not refine_available():
+        return Settings(gaussians, cell, 0, f"not refined: refining needs PyTorch, which this Blender's "
+                                            f"Python lacks ({refine} steps asked)")
+    return Settings(gaussians, cell, refine)
+
+
+def request(source: Source, chosen: Settings) -> EncodeRequest:
+    return EncodeRequest(source.path, chosen.gaussians, chosen.cell, chosen.refine, source.start, source.stop)
+
+
+def copy_options(source, target) -> None:
+    """Copy the encode options (e.g. an operator's into the clip's settings, for Re-encode)."""
+    for name in ("quality", "cell_size", "gaussian_count", "refine_steps"):
+        setattr(target, name, getattr(source, name))
+
+
+_refine: list[bool] = []
+
+
+def refine_available() -> bool:
+    """Whether refining can run here (it needs torch, which Blender's Python does not ship)."""
+    if not _refine:
+        try:
+            import torch  # noqa: F401
+            _refine.append(True)
+        except ImportError:
+            _refine.append(False)
+    return _refine[0]
+
+
+_probed: dict = {}
+
+
+def source_info(path: str):
+    """probe() of a video or image sequence, kept while the file is unchanged (dialogs redraw often)."""
+    try:
+        st = os.stat(path)
+        key = (path, st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = (path, None, None)  # an image-sequence pattern: probe says what is wrong
+    if key not in _probed:
+        if len(_probed) > 64:
+            _probed.clear()
+        _probed[key] = probe(path)
+    return _probed[key]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the options give for one source: its size, the Gaussians' layout, frames, estimate."""
+    source: Source
+    width: int
+    height: int
+    layout: object  # encode.Layout
+    frames: int
+    estimate: object  # encode.Estimate
+
+
+def plan(sources: list[Source], chosen: Settings, runtime: Runtime) -> list[Plan]:
+    """The layout and estimate of each source. Raises HyperGSError (a source or the encoder's problem)."""
+    encoder = make_encoder(runtime)  # loaded once; the encode uses it too
+    plans = []
+    for source in sources:
+        info = source_info(source.path)
+        stop = info.num_frames if source.stop is None else min(source.stop, info.num_frames)
+        frames = max(0, stop - source.start)
+        layout = plan_layout(info.width, info.height, encoder.stride, chosen.gaussians, chosen.cell)
+        plans.append(Plan(source, info.width, info.height, layout, frames,
+                          estimate(layout, frames, chosen.refine, encoder.name)))
+    return plans
+
+
+def draw(layout, options, sources, runtime: Runtime) -> None:
+    """The options, then what they give for `sources` (or why it cannot be told). `sources`: a list of
+    Source, or a callable returning one (it may raise HyperGSError)."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    col = layout.column()
+    col.row().prop(options, "quality", expand=True)
+    if options.quality == CUSTOM:
+        sub = col.column(align=True)
+        sub.prop(options, "cell_size")
+        sub.prop(options, "gaussian_count")
+        sub.prop(options, "refine_steps")
+    box = layout.box().column(align=True)
+    chosen = settings(options)
+    try:
+        plans = plan(sources() if callable(sources) else sources, chosen, runtime)
+    except HyperGSError as e:
+        box.alert = True
+        box.label(text=str(e), icon="ERROR")
+        return
+    for line, icon in summary(plans, chosen):
+        box.label(text=line, icon=icon)
+
+
+def summary(plans: list[Plan], chosen: Settings) -> list[tuple[str, str]]:
+    """The dialog's lines (text, icon): per source its Gaussians per frame, then frames, time and size."""
+    lines = []
+    for p in plans[:3]:
+        name = f"{p.source.name}: " if len(plans) > 1 else ""
+        lines.append((f"{name}{p.layout.count:,} Gaussians per frame ({p.layout.cols} x {p.layout.rows} cells of "
+                      f"{p.layout.cell:.1f} px at {p.width} x {p.height})", "MOD_PARTICLES"))
+    if len(plans) > 3:
+        lines.append((f"and {len(plans) - 3} more clips", "BLANK1"))
+    frames = sum(p.frames for p in plans)
+    seconds = sum(p.estimate.seconds for p in plans)
+    size = sum(p.estimate.blend_bytes for p in plans)
+    refine = f", refined {chosen.refine} steps" if chosen.refine else ""
+    lines.append((f"{frames} frames{refine}: about {_duration(seconds)}, {_megabytes(size)} in the .blend",
+                  "TIME"))
+    for note in [p.layout.note for p in plans if p.layout.note][:1] + ([chosen.note] if chosen.note else []):
+        lines.append((note, "INFO"))
+    return lines
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{max(1, round(seconds))} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _megabytes(size: float) -> str:
+    return f"{size / 1e6:.1f} MB" if size < 1e9 else f"{size / 1e9:.1f} GB"

@@ -1,0 +1,311 @@
+"""The Sequencer in the real bpy wheel: Convert to Gaussians on the selected movie strips, each becoming a
+scene rendered by HyperGS that a scene strip plays with the original timing; the round trip (convert ->
+the scene strip plays -> F12 of the Sequencer's output against the source); menus, dialog; failures,
+cancels and half-done conversions leave the file as it was.
+
+One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares).
+"""
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_blender_session, step
+from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, operator_defaults,  # noqa: E402
+                                snapshot, types_namespace)
+
+ENCODER = "floor"  # fast; the matrix (tools/blender_matrix.py) runs the Sequencer with the network
+GAUSSIANS = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY["draft"]["cell"]).count  # Draft, the sample
+# The sample (256 x 144, 60 frames) as three strips: timeline [first, end) showing source frames from
+# `source` on. "a" starts where its content does; "b" is trimmed at both ends; "c" stays unselected.
+STRIPS = {"a": dict(content=1, first=1, end=13, source=0, channel=1),
+          "b": dict(content=21, first=31, end=41, source=10, channel=1),
+          "c": dict(content=50, first=50, end=60, source=0, channel=1)}
+ROUND_TRIP = {1: ("a", 0), 7: ("a", 6), 12: ("a", 11), 31: ("b", 10), 36: ("b", 15), 40: ("b", 19)}
+GAP = 20  # no strip there: black
+PSNR_MARGIN = 0.3  # dB the Sequencer's F12 may lose to the core's own encode -> render (8-bit PNG)
+SESSION_TIMEOUT = 300
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    work = tmp_path_factory.mktemp("blender_sequencer")
+    results, console = run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
+    results["console"] = console
+    return results
+
+
+def test_menus_offer_the_conversion_with_a_dialog(session):
+    r = step(session, "menus")
+    assert r["strip_menu"] and r["context_menu"]
+    assert r["drawn"] == [["operator", "Convert to Gaussians...", "MOD_PARTICLES"]]
+    assert r["operator_context"] == "INVOKE_DEFAULT"  # invoke shows the options dialog
+
+
+@pytest.mark.parametrize("preset", ["DRAFT", "STANDARD", "HIGH"])
+def test_dialog_shows_the_gaussians_per_frame_and_an_estimate(session, preset):
+    drawn = step(session, "menus")["dialog"][preset]
+    labels = [c[1] for c in drawn if c[0] == "label"]
+    count = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY[preset.lower()]["cell"]).count
+    for name in ("a", "b"):  # each selected strip, at its source's resolution
+        assert any(line.startswith(f"{name}: {count:,} Gaussians per frame") and "at 256 x 144" in line
+                   for line in labels), labels
+    assert any(line.startswith("22 frames") and "MB in the .blend" in line for line in labels), labels
+    assert ["prop", "quality", None] in drawn and ["prop", "cell_size", None] not in drawn
+    # High refines; this Blender's Python has no PyTorch: the dialog says so before anything runs.
+    assert any("refining needs PyTorch" in line for line in labels) == (QUALITY[preset.lower()]["refine"] > 0)
+
+
+def test_dialog_custom_shows_the_custom_options(session):
+    drawn = step(session, "menus")["dialog"]["CUSTOM"]
+    assert all(["prop", name, None] in drawn for name in ("cell_size", "gaussian_count", "refine_steps"))
+
+
+@pytest.mark.parametrize("case", ["missing_movie", "nothing_convertible", "apply_fails"])
+def test_failed_conversions_change_nothing(session, case):
+    r = step(session, "failures")[case]
+    assert r["raised"] and "Traceback" not in r["message"]
+    assert r["expect"].lower() in r["message"].lower(), r["message"]
+    assert r["unchanged"], r["diff"]
+
+
+def test_a_failure_after_the_first_clip_takes_it_back(session):
+    r = step(session, "failures")["apply_fails"]
+    assert r["added_before_failing"] == 2 and r["unchanged"], r["diff"]
+
+
+def test_esc_during_the_second_clip_changes_nothing(session):
+    r = step(session, "failures")["cancelled"]
+    assert r["result"] == ["CANCELLED"] and r["encoded"] == 2
+    assert r["unchanged"], r["diff"]
+
+
+def test_selected_strips_become_scene_strips(session):
+    r = step(session, "convert")
+    assert r["result"] == ["FINISHED"]
+    assert sorted(r["converted"]) == ["a", "b"] and r["others"]["c"] == dict(mute=False, scene_strips=0)
+    for name, c in r["converted"].items():
+        spec = STRIPS[name]
+        count = spec["end"] - spec["first"]
+        assert c["movie_muted"] and c["scene_strip_range"] == [spec["first"], spec["end"]]
+        assert c["scene_strip_channel"] == spec["channel"] + 1
+        assert c["scene"] == dict(engine="HYPERGS", resolution=[256, 144, 100], frames=[1, count], fps=24.0,
+                                  camera=True, view_transform="Standard")
+        assert c["clip"] == dict(frame_start=1, num_frames=count, source_start=spec["source"],
+                                 gaussians_per_frame=GAUSSIANS, quality="DRAFT")
+    assert r["preview_shading"] == "RENDERED"  # the Sequencer's preview shows the Gaussians
+    assert r["selected"] == sorted([c["scene_strip"] for c in r["converted"].values()] + ["colour"])
+    report = next(line for line in session["console"].splitlines() if line.startswith("Info: HyperGS: "))
+    assert all(f"played by the scene strip '{c['scene_strip']}'" in report for c in r["converted"].values())
+
+
+@pytest.mark.parametrize("frame", sorted(ROUND_TRIP))
+def test_f12_of_the_sequencer_shows_the_gaussians(session, frame):
+    f = step(session, "round_trip")[str(frame)]
+    assert f["psnr_source"] > f["psnr_reference"] - PSNR_MARGIN, f
+    assert f["psnr_vs_core"] > 40, f  # the Sequencer's output is the core's render of that frame
+    assert f["psnr_source"] > f["psnr_wrong_frame"] + 1, f  # and of that frame only: the timing holds
+
+
+def test_gap_between_strips_is_black(session):
+    assert step(session, "round_trip")["gap_max"] == 0
+
+
+def test_cutting_the_scene_strip_keeps_the_timing(session):
+    r = step(session, "cut")
+    assert r["psnr_vs_core"] > 40 and r["psnr_source"] > r["psnr_wrong_frame"] + 1, r
+
+
+# ----------------------------------------------------------------------------------------------------
+# Blender side (run as a script: python test_blender_sequencer.py ZIP WORKDIR OUT.json)
+
+def run_session(zip_path, work, out_path):
+    from hypergs_blender.bench import blender as job
+
+    work = Path(work)
+    results = {}
+    record = job.step_recorder(results, out_path)
+    bpy = job.start_blender(work / "user")
+    addon = job.install_extension(bpy, zip_path)
+    compat = _import(addon, "com.compat")
+    from hypergs_blender.encode import encode_video
+    from hypergs_blender.io.frames import iter_frames
+    from hypergs_blender.metrics import psnr
+    from hypergs_blender.render import render_frames
+    encoder = _import(addon, "ops.encoder").make_encoder()
+
+    scene = bpy.context.scene
+    for o in list(bpy.data.objects):  # a Video Editing file: strips only
+        bpy.data.objects.remove(o)
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 256, 144, 100
+    scene.view_settings.view_transform = "Standard"
+    scene.render.dither_intensity = 0.0
+    scene.frame_start, scene.frame_end = 1, 60
+    editor = scene.sequence_editor_create()
+    strips = compat.top_strips(editor)
+    made = {}
+    for name, spec in STRIPS.items():
+        strip = strips.new_movie(name=name, filepath=str(job.SAMPLE), channel=spec["channel"],
+                                 frame_start=spec["content"])
+        set_range(strip, spec["first"], spec["end"])
+        made[name] = strip
+    strips.new_effect(name="colour", type="COLOR", channel=3, frame_start=45,  # where no frame is compared
+                      **(dict(length=5) if bpy.app.version >= (5, 0, 0) else dict(frame_end=50)))
+
+    def select(*names):
+        for s in compat.all_strips(editor):
+            s.select = s.name in names
+        editor.active_strip = compat.all_strips(editor)[names[0]] if names else None
+
+    def attempt(expect, call):
+        return attempt_unchanged(bpy, expect, call)
+
+    @record("menus")
+    def _():
+        ui = _import(addon, "ui")
+        recorder = Recorder()
+        ui.menu_strip(types_namespace(layout=recorder), bpy.context)
+        drawn = [list(c) for c in recorder.calls]
+        recorder.calls.clear()
+        op = bpy.types.HYPERGS_OT_convert_strip
+        select("a", "b")
+        dialog = {}
+        for preset in ("DRAFT", "STANDARD", "HIGH", "CUSTOM"):
+            layout = Recorder()
+            op.draw(types_namespace(layout=layout, **dict(operator_defaults(bpy, op), quality=preset)), bpy.context)
+            dialog[preset] = [list(c) for c in layout.calls]
+        return dict(strip_menu=ui.menu_strip in bpy.types.SEQUENCER_MT_strip.draw._draw_funcs,
+                    context_menu=ui.menu_strip in bpy.types.SEQUENCER_MT_context_menu.draw._draw_funcs,
+                    drawn=drawn, operator_context=recorder.attributes.get("operator_context"), dialog=dialog)
+
+    @record("failures")
+    def _():
+        out = {}
+        gone = work / "gone.mp4"
+        gone.write_bytes(job.SAMPLE.read_bytes())
+        missing = strips.new_movie(name="missing", filepath=str(gone), channel=5, frame_start=1)
+        gone.unlink()
+        select("a", "missing")
+        out["missing_movie"] = attempt("gone.mp4: no such video file", lambda: bpy.ops.hypergs.convert_strip())
+        strips.remove(missing)
+        select("colour")
+        out["nothing_convertible"] = attempt("'colour': not a movie strip",
+                                             lambda: bpy.ops.hypergs.convert_strip())
+        select("a", "b")
+        plan = _import(addon, "hypergs_blender.encode").EncodePlan
+        original = plan.chunks
+        calls = []
+
+        def cancel_in_the_second(self, progress=None, *args, **kwargs):  # Esc while encoding strip "b"
+            calls.append(self.path)
+            return original(self, (lambda done, total: len(calls) < 2), *args, **kwargs)
+
+        plan.chunks = cancel_in_the_second
+        before = snapshot(bpy)
+        try:
+            result = bpy.ops.hypergs.convert_strip()
+        finally:
+            plan.chunks = original
+        after = snapshot(bpy)
+        out["cancelled"] = dict(result=sorted(result), encoded=len(calls), unchanged=before == after,
+                                diff=diff(before, after))
+        scene_module = _import(addon, "ops.scene")
+        add = scene_module.add_strip_scene
+        added = []
+
+        def second_fails(*args, **kwargs):  # the first clip is in the file already when the second fails
+            added.append(add(*args, **kwargs))
+            if len(added) == 2:
+                raise RuntimeError("simulated failure while adding the second clip")
+            return added[-1]
+
+        scene_module.add_strip_scene = second_fails
+        try:
+            out["apply_fails"] = attempt("simulated failure", lambda: bpy.ops.hypergs.convert_strip())
+        finally:
+            scene_module.add_strip_scene = add
+        out["apply_fails"]["added_before_failing"] = len(added)
+        return out
+
+    @record("convert")
+    def _():
+        select("a", "b", "colour")  # the colour strip is not a movie: left alone
+        before = {s.name for s in compat.all_strips(editor)}
+        result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
+        converted = {}
+        for s in compat.all_strips(editor):
+            if s.name in before or s.type != "SCENE":
+                continue
+            sc = s.scene
+            clip = next(o for o in sc.objects if o.hypergs.is_clip)
+            movie = made[clip.name.split(".")[0]]
+            converted[movie.name] = dict(
+                scene_strip=s.name, movie_muted=movie.mute, scene_strip_range=list(compat.strip_range(s)),
+                scene_strip_channel=s.channel,
+                scene=dict(engine=sc.render.engine, resolution=[sc.render.resolution_x, sc.render.resolution_y,
+                                                                sc.render.resolution_percentage],
+                           frames=[sc.frame_start, sc.frame_end], fps=sc.render.fps / sc.render.fps_base,
+                           camera=sc.camera is not None, view_transform=sc.view_settings.view_transform),
+                clip=dict(frame_start=clip.hypergs.frame_start, num_frames=clip.hypergs.num_frames,
+                          source_start=clip.hypergs.source_start,
+                          gaussians_per_frame=clip.hypergs.gaussians_per_frame, quality=clip.hypergs.quality))
+        return dict(result=sorted(result), converted=converted,
+                    others={"c": dict(mute=made["c"].mute,
+                                      scene_strips=sum(1 for s in compat.all_strips(editor) if s.type == "SCENE"
+                                                       and s.name not in before and s.scene.name.startswith("c")))},
+                    preview_shading=scene.render.sequencer_gl_preview,
+                    selected=sorted(s.name for s in compat.all_strips(editor) if s.select))
+
+    sources = sorted({source for _, source in ROUND_TRIP.values()} | {source + 3 for _, source in ROUND_TRIP.values()})
+    truth = {i: f / np.float32(255) for i, f in iter_frames(str(job.SAMPLE), sources)}
+    references = {name: encode_video(str(job.SAMPLE), encoder, GAUSSIANS, 1, start=spec["source"],
+                                     stop=spec["source"] + spec["end"] - spec["first"])
+                  for name, spec in STRIPS.items() if name != "c"}
+
+    def f12(frame, name):
+        png = work / f"{name}.png"
+        job.render_png(bpy, scene, frame, png)
+        return job.read_png(bpy, png)
+
+    def compare(image, name, source):
+        ref = render_frames(references[name], 256, 144, [source - STRIPS[name]["source"]])[0]
+        return dict(psnr_source=float(psnr(image, truth[source])),
+                    psnr_reference=float(psnr(ref, truth[source])),
+                    psnr_vs_core=float(psnr(image, np.clip(ref, 0, 1))),
+                    psnr_wrong_frame=float(psnr(image, truth[source + 3])))
+
+    @record("round_trip")
+    def _():
+        out = {str(frame): compare(f12(frame, f"seq_{frame}"), name, source)
+               for frame, (name, source) in ROUND_TRIP.items()}
+        out["gap_max"] = float(f12(GAP, "seq_gap").max())
+        return out
+
+    @record("cut")
+    def _():
+        scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("a"))
+        set_range(scene_strip, 4, 13)  # the user trims the converted clip: frame 4 still shows source frame 3
+        return compare(f12(4, "cut_4"), "a", 3)
+
+    return results
+
+
+def set_range(strip, first, end):
+    """Move a strip's handles: it shows timeline frames [first, end)."""
+    if hasattr(strip, "left_handle"):  # Blender 5.2+
+        strip.left_handle, strip.right_handle = first, end
+    else:
+        strip.frame_final_start, strip.frame_final_end = first, end
+
+
+if __name__ == "__main__":
+    zip_arg, work_arg, out_arg = sys.argv[1:4]
+    run_session(zip_arg, work_arg, out_arg)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)  # skip bpy's slow teardown (and bpy 4.2's crash at exit)

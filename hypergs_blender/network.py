@@ -51,8 +51,10 @@ class NetworkEncoder:
     reach are the network's (model.ConvConfig)."""
 
     def __init__(self, forward, stride: int, multiple: int, reach: int, name: str, tile: int = TILE,
-                 provider: str | None = None):
-        self.forward, self.name, self.provider = forward, name, provider  # provider: onnxruntime's, which ran
+                 session=None):
+        self.forward, self.name, self.session = forward, name, session  # session: onnxruntime's, or None
+        # What runs: onnxruntime leaves out a provider that cannot start here (a missing CUDA library).
+        self.provider = session.get_providers()[0] if session is not None else None
         self.stride, self.multiple, self.reach, self.tile = int(stride), int(multiple), int(reach), int(tile)
         self.granule = self.multiple // self.stride
 
@@ -129,9 +131,8 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
         return session.run(["params"], {"frames": frames})[0]
 
     geometry = card["geometry"]  # written by training.export from the model's config
-    # What runs: onnxruntime leaves out a provider that cannot start here (a missing CUDA library).
     return NetworkEncoder(forward, geometry["stride"], geometry["multiple"], geometry["reach"], "network-onnx",
-                          provider=session.get_providers()[0])
+                          session=session)
 
 
 def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None,

@@ -263,7 +263,7 @@ def run_session(zip_path, work, out_path):
 
     sources = sorted({source for _, source in ROUND_TRIP.values()} | {source + 3 for _, source in ROUND_TRIP.values()})
     truth = {i: f / np.float32(255) for i, f in iter_frames(str(job.SAMPLE), sources)}
-    references = {name: encode_video(str(job.SAMPLE), encoder, GAUSSIANS, 1, start=spec["source"],
+    references = {name: encode_video(str(job.SAMPLE), encoder, cell=QUALITY["draft"]["cell"], start=spec["source"],
                                      stop=spec["source"] + spec["end"] - spec["first"])
                   for name, spec in STRIPS.items() if name != "c"}
 

@@ -20,8 +20,10 @@ from .options import Parser, check_paths, command_parser
 COMMAND_MODULES = ["encode", "evaluate", "fit", "train", "data", "clips", "bench", "build"]
 
 
-class Terminated(BaseException):
-    """SIGTERM arrived (raised in the main thread, so that every `with` and `finally` cleans up)."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived (raised in the main thread, so that every `with` and `finally` cleans up). A
+    KeyboardInterrupt, as Ctrl-C's: native code that checks for signals (numba's parallel kernels) stops
+    cleanly for that one; another exception raised there crashed the process now and then."""
 
 
 def build_parser() -> Parser:
@@ -64,10 +66,10 @@ def _failure(error: BaseException) -> tuple[int, str] | None:
     the KeyboardInterrupt as its cause)."""
     cause = error
     while cause is not None:
-        if isinstance(cause, KeyboardInterrupt):
-            return 130, "interrupted"
         if isinstance(cause, Terminated):
             return 143, "terminated"
+        if isinstance(cause, KeyboardInterrupt):
+            return 130, "interrupted"
         cause = cause.__cause__ or cause.__context__
     if isinstance(error, HyperGSError):
         return 1, str(error)

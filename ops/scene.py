@@ -372,10 +372,26 @@ def add_strip_scene(sequencer_scene, strip, video: GaussianVideo, *, undo: Undo,
         raise HyperGSError(f"no free Sequencer channel above '{strip.name}' for its frames {first}-{end - 1}")
     scene_strip = siblings.new_scene(name=scene.name, scene=scene, channel=channel, frame_start=first)
     undo.call(lambda: siblings.remove(scene_strip))
+    copy_placement(strip, scene_strip)
     was_muted = strip.mute
     strip.mute = True  # the movie would cover the scene strip's picture otherwise (or show under it)
     undo.call(lambda: setattr(strip, "mute", was_muted))
     return obj, scene_strip
+
+
+PLACEMENT = {"transform": ("scale_x", "scale_y", "offset_x", "offset_y", "rotation", "origin"),
+             "crop": ("min_x", "max_x", "min_y", "max_y")}
+
+
+def copy_placement(source, target) -> None:
+    """Show `target` where `source` shows: its transform and crop. The clip's scene renders at the
+    source's own resolution, so a movie scaled to fit a smaller (or larger) Sequencer output keeps its
+    framing instead of being shown at its original size, cropped."""
+    for group, names in PLACEMENT.items():
+        src, dst = getattr(source, group, None), getattr(target, group, None)
+        if src is not None and dst is not None:
+            for name in names:
+                setattr(dst, name, getattr(src, name))
 
 
 def free_channel(strips, first: int, end: int, lowest: int) -> int:

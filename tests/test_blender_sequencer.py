@@ -93,6 +93,7 @@ def test_selected_strips_become_scene_strips(session):
         count = spec["end"] - spec["first"]
         assert c["movie_muted"] and c["scene_strip_range"] == [spec["first"], spec["end"]]
         assert c["scene_strip_channel"] == spec["channel"] + 1
+        assert c["origin"] == ([0.25, 0.75] if name == "a" else [0.5, 0.5])  # the movie's placement, copied
         assert c["scene"] == dict(engine="HYPERGS", resolution=[256, 144, 100], frames=[1, count], fps=24.0,
                                   camera=True, view_transform="Standard")
         assert c["clip"] == dict(frame_start=1, num_frames=count, source_start=spec["source"],
@@ -154,6 +155,8 @@ def run_session(zip_path, work, out_path):
                                  frame_start=spec["content"])
         set_range(strip, spec["first"], spec["end"])
         made[name] = strip
+    # A placement the scene strip must copy (an origin alone leaves the picture as it is at scale 1).
+    made["a"].transform.origin = (0.25, 0.75)
     strips.new_effect(name="colour", type="COLOR", channel=3, frame_start=45,  # where no frame is compared
                       **(dict(length=5) if bpy.app.version >= (5, 0, 0) else dict(frame_end=50)))
 
@@ -246,7 +249,7 @@ def run_session(zip_path, work, out_path):
             movie = made[clip.name.split(".")[0]]
             converted[movie.name] = dict(
                 scene_strip=s.name, movie_muted=movie.mute, scene_strip_range=list(compat.strip_range(s)),
-                scene_strip_channel=s.channel,
+                scene_strip_channel=s.channel, origin=[round(v, 4) for v in s.transform.origin],
                 scene=dict(engine=sc.render.engine, resolution=[sc.render.resolution_x, sc.render.resolution_y,
                                                                 sc.render.resolution_percentage],
                            frames=[sc.frame_start, sc.frame_end], fps=sc.render.fps / sc.render.fps_base,

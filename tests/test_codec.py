@@ -372,7 +372,7 @@ def test_info_command(tmp_path, capsys, monkeypatch):
     save_hgs(video, tmp_path / "c.hgs", bits=6)
     main(["info", str(tmp_path / "c.hgs"), "--verify", "--json"])
     info = json.loads(capsys.readouterr().out)
-    assert info["num_frames"] == 5 and info["num_gaussians"] == 30 and info["bits"] == [6] * 8
+    assert info["num_frames"] == 5 and info["num_gaussians"] == 30 and info["bits"] == [8, 8] + [6] * 6  # means: io/codec.clip_bits
     assert info["verified"] is True
     main(["info", str(tmp_path / "c.hgs")])
     assert "30 per frame" in capsys.readouterr().out
@@ -400,3 +400,20 @@ def test_bench_codec_reports_rate_and_distortion():
     assert set(rows[8]["bytes_by_mode"]) == {"intra", "anchor", "previous"}
     table = format_codec_table(result)
     assert "| .hgs | N=64, 8 bits |" in table and "| .hgs | N=64, 4 bits, x/y 10 bits |" in table
+
+
+def test_means_keep_a_quarter_pixel_on_any_canvas(tmp_path):
+    """8 bits for every value, but the means get the bits their canvas needs: a 1280 px canvas at 8-bit
+    means would move every Gaussian by up to 2.5 px."""
+    from hypergs_blender.io.codec import MEAN_STEP_PX, clip_bits
+    from hypergs_blender.io.hgs import load_hgs, save_hgs
+    assert clip_bits(8, 256, 144)[:2] == (11, 10) and clip_bits(8, 1280, 720)[:2] == (13, 12)
+    assert clip_bits(8, 1280, 720)[2:] == (8,) * 6 and clip_bits((6,) * 8, 1280, 720) == (6,) * 8
+    rng = np.random.default_rng(3)
+    params = np.concatenate([rng.uniform(-1, 1, (2, 500, 2)), rng.uniform(2, 6, (2, 500, 2)),
+                             rng.uniform(0, np.pi, (2, 500, 1)), rng.uniform(0, 1, (2, 500, 3))], -1).astype(np.float32)
+    video = GaussianVideo(params, 1280, 720, 24.0)
+    save_hgs(video, tmp_path / "c.hgs", bits=8)
+    back = load_hgs(tmp_path / "c.hgs").params
+    error_px = np.abs(back[..., :2] - params[..., :2]) * np.array([640, 360])
+    assert error_px.max() <= MEAN_STEP_PX / 2 + 1e-3

@@ -2,6 +2,8 @@
 (the process's CPU time, so other jobs on the machine do not stretch it), and resident memory.
 
     .venv/bin/python tools/plot_training.py runs/conv [runs/other ...] [--out docs/training_curve.png]
+    .venv/bin/python tools/plot_training.py runs/conv runs/conv2 --chain   # conv2 started from conv's
+                                                                           # weights at its last evaluation
 """
 from __future__ import annotations
 
@@ -25,17 +27,27 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, default=Path("docs/training_curve.png"))
+    parser.add_argument("--chain", action="store_true",
+                        help="each run continues the previous one from its last evaluation: its hours start there")
     args = parser.parse_args()
     fig, (ax, mem) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
     rows = ["run,step,cpu_hours,wall_hours,metric,psnr"]
+    offset = 0.0  # CPU seconds before this run (--chain)
+    colours: dict[str, str] = {}  # one colour per metric across runs
     for run in args.runs:
         evals, steps = read_log(run)
+        evals = [dict(r, cpu=r["cpu"] + offset) for r in evals]
+        steps = [dict(r, cpu=r["cpu"] + offset) for r in steps]
         for metric in sorted(evals[0]["eval"]) if evals else []:
             hours = [r["cpu"] / 3600 for r in evals]
-            ax.plot(hours, [r["eval"][metric] for r in evals], marker="o", ms=3, label=f"{run.name}: {metric}")
+            colour = colours.setdefault(metric, f"C{len(colours)}")
+            ax.plot(hours, [r["eval"][metric] for r in evals], marker="o", ms=3, color=colour,
+                    label=(metric if run == args.runs[0] else "_nolegend_") if args.chain else f"{run.name}: {metric}")
             rows += [f"{run.name},{r['step']},{r['cpu'] / 3600:.3f},{r['wall'] / 3600:.3f},{metric},{r['eval'][metric]}"
                      for r in evals]
         mem.plot([r["cpu"] / 3600 for r in steps], [r["rss_mb"] for r in steps], lw=1, label=run.name)
+        if args.chain and evals:
+            offset = evals[-1]["cpu"]
     ax.set_xlabel("training CPU hours (process time)")
     ax.set_ylabel("PSNR (dB), 256 x 256 frames")
     ax.set_title("held-out photos (val) and the dev videos (reporting only); n = Gaussians per frame", fontsize=9)

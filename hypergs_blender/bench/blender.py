@@ -204,9 +204,12 @@ def install_extension(bpy, zip_path):
 
 
 def add_movie_strip(bpy, scene, path, frame_start=1, name="clip"):
+    """A movie strip stretched to the scene's output size (set it first), as `source_frames` resizes the
+    frames it is compared with (Add > Movie's default, Scale to Fit, would letterbox another aspect)."""
     editor = scene.sequence_editor_create()
     strips = editor.strips if hasattr(editor, "strips") else editor.sequences
-    strip = strips.new_movie(name=name, filepath=str(path), channel=1, frame_start=frame_start)
+    strip = strips.new_movie(name=name, filepath=str(path), channel=1, frame_start=frame_start,
+                             fit_method="STRETCH")
     editor.active_strip = strip
     return strip
 
@@ -313,12 +316,12 @@ def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> N
     added plays the clip's scene, rendered by HyperGS) at spread frames, against the source."""
     compat = addon_module(addon, "com.compat")
     scene = bpy.context.scene
-    strip = add_movie_strip(bpy, scene, video, name=video.stem)
-    elem = strip.elements[0]
-    width, height = (map(int, args.size.lower().split("x")) if args.size
-                     else (elem.orig_width, elem.orig_height))
-    scene.render.resolution_x, scene.render.resolution_y = width, height
+    from ..io.frames import probe
+    info = probe(video)
+    width, height = (map(int, args.size.lower().split("x")) if args.size else (info.width, info.height))
+    scene.render.resolution_x, scene.render.resolution_y = width, height  # before the strip: it fits this
     scene.render.resolution_percentage = 100
+    strip = add_movie_strip(bpy, scene, video, name=video.stem)
     scene.view_settings.view_transform = "Standard"  # as in a video editing file: output = the strips' sRGB
     first, end = compat.strip_range(strip)
     scene.frame_start, scene.frame_end = first, end - 1

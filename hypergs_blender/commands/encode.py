@@ -25,8 +25,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--start", type=options.frame_index, default=0)
     p.add_argument("--stop", type=options.frame_count, default=None)
     p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
-    p.add_argument("--position-bits", type=int, default=10, choices=range(4, 17), metavar="{4..16}",
-                   help="bits of the means (.hgs; default 10: at 4-6 bits the means snap to a coarse lattice)")
+    p.add_argument("--position-bits", type=int, default=None, choices=range(4, 17), metavar="{4..16}",
+                   help="bits of the means (.hgs; default: steps of at most 1/4 canvas pixel, io/codec.clip_bits)")
     add_encoder_arguments(p)
     p.set_defaults(func=_encode_command)
 
@@ -59,9 +59,11 @@ def _encode_command(args) -> None:
         if streamed:
             # Streamed: memory stays bounded by the chunk, and the writer only renames its temporary
             # file into place when every frame is in, so an interrupted encode leaves no file behind.
-            from ..io.codec import Quantizer
+            from ..io.codec import Quantizer, clip_bits
             from ..io.hgs import HgsWriter
-            bits = (args.position_bits,) * 2 + (args.bits,) * 6
+            bits = clip_bits(args.bits, plan.width, plan.height)
+            if args.position_bits:
+                bits = (args.position_bits,) * 2 + bits[2:]
             quantizer = Quantizer.default(plan.width, plan.height, bits)
             with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
                            plan.grid, plan.source) as writer:

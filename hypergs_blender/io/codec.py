@@ -59,6 +59,22 @@ def _bits_tuple(bits) -> tuple[int, ...]:
     return bits
 
 
+MEAN_STEP_PX = 0.25  # the means' quantization step, at most, in canvas pixels (see clip_bits)
+
+
+def clip_bits(bits, canvas_width: int, canvas_height: int) -> tuple[int, ...]:
+    """The bit depths of a clip on a canvas_width x canvas_height canvas: one depth for every parameter
+    (`bits` an integer) except the means, which get enough bits for steps of at most MEAN_STEP_PX over
+    the default range (1.25 canvas half-widths either side): a fixed depth would move the means of a
+    large canvas by pixels (8 bits on a 1280 px canvas: 5 px steps, 39 -> 22 dB). Explicit depths
+    (8 of them) are kept as given."""
+    if not isinstance(bits, (int, np.integer)):
+        return _bits_tuple(bits)
+    means = [min(MAX_BITS, max(int(bits), math.ceil(math.log2(2.5 * side / 2 / MEAN_STEP_PX + 1))))
+             for side in (canvas_width, canvas_height)]
+    return _bits_tuple(tuple(means) + (int(bits),) * (NUM_PARAMS - 2))
+
+
 @dataclass(frozen=True)
 class Quantizer:
     """Per-parameter bit depths and [lo, hi] ranges (in each parameter's coding domain, see module doc).

@@ -38,7 +38,7 @@ from typing import Iterator
 import numpy as np
 
 from .. import limits
-from .codec import TRANSFORMS, CodecError, Quantizer, decode_group, encode_group
+from .codec import TRANSFORMS, CodecError, Quantizer, clip_bits, decode_group, encode_group
 from .files import AtomicOutput
 from ..errors import HyperGSError
 from ..gaussians import MAX_FPS, MAX_GRID, NUM_PARAMS, GaussianVideo
@@ -184,9 +184,10 @@ class HgsWriter:
         if len(grid) != 2 or not all(1 <= g <= MAX_GRID for g in grid):
             raise HgsError(f"grid {grid} out of range")
         self.path = Path(path)
+        quantizer = quantizer or Quantizer.default(canvas_width, canvas_height,
+                                                   clip_bits(bits, canvas_width, canvas_height))
         self.header = HgsHeader(int(canvas_width), int(canvas_height), float(fps), int(num_gaussians), grid,
-                                quantizer or Quantizer.default(canvas_width, canvas_height, bits), int(group_size),
-                                source=dict(source or {}))
+                                quantizer, int(group_size), source=dict(source or {}))
         self.mode = mode
         self.clipped = 0
         self._pending: list[np.ndarray] = []  # quantized frames of the group being filled
@@ -477,7 +478,7 @@ def save_hgs(video: GaussianVideo, path, bits=8, group_size: int = DEFAULT_GROUP
     if video.num_frames == 0:
         raise HgsError("cannot save an empty clip (no frames)")
     try:
-        quantizer = quantizer or Quantizer.fit(video.params, bits)
+        quantizer = quantizer or Quantizer.fit(video.params, clip_bits(bits, video.canvas_width, video.canvas_height))
     except CodecError as e:
         raise HgsError(str(e)) from e
     with HgsWriter(path, video.canvas_width, video.canvas_height, video.num_gaussians, quantizer, video.fps,

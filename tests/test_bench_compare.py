@@ -272,3 +272,13 @@ def test_bench_picture_renders_each_preset(tmp_path):
     assert standard["psnr"] > draft["psnr"] > 15  # more Gaussians look better
     picture = save_picture(report, tmp_path / "picture.png")
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_plots_command_writes_the_plots(tmp_path, capsys):
+    """`hypergs bench plots --bench DIR --out DIR` (its --bench once overwrote the subcommand's name)."""
+    from hypergs_blender.commands.cli import main
+    reports, out = tmp_path / "bench", tmp_path / "docs"
+    reports.mkdir()
+    (reports / "vs_fit.json").write_text((Path(__file__).resolve().parents[1] / "docs/bench/vs_fit.json").read_text())
+    main(["bench", "plots", "--bench", str(reports), "--out", str(out)])
+    assert (out / "vs_fit.png").stat().st_size > 0 and (reports / "tables.md").is_file()

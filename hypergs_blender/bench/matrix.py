@@ -35,7 +35,7 @@ MATRIX_DIR = ROOT / ".blender-matrix"
 OUT_DIR = ROOT / "runs" / "blender_matrix"
 MIN_PSNR = 24.0  # dB, the sample at Standard quality (1032 Gaussians): the network gives ~29.7, the floor ~25.9
 PSNR_MARGIN = 1.0  # dB the Sequencer's F12 may lose to the encoder's own measurement (8-bit PNG)
-LINKED_MARGIN = 1.0  # dB a clip linked to its .hgs file may lose to the embedded one (8-bit values: 0.3 dB at 39 dB)
+LINKED_MARGIN = 2.0  # dB a clip linked to its .hgs file may lose to the embedded one (8-bit values: 0.3-1.5 dB at Standard)
 INSTALL_TIMEOUT = 1800
 SESSION_TIMEOUT = 900
 

@@ -215,16 +215,16 @@ def _splat(parser):
 
 def _plots(parser):
     from ..bench.blender import ROOT
-    parser.add_argument("--bench", default=str(ROOT / "docs" / "bench"), type=options.input_folder,
-                        help="folder of the JSON reports")
+    parser.add_argument("--bench", dest="reports", default=str(ROOT / "docs" / "bench"), type=options.input_folder,
+                        help="folder of the JSON reports")  # (dest: `bench` names the bench subcommand)
     parser.add_argument("--out", default=str(ROOT / "docs"), type=options.output_folder, help="folder for the PNGs")
 
     def run(args) -> dict:
         from ..bench.plots import make_plots
         from ..errors import HyperGSError
-        written = make_plots(args.bench, args.out)
+        written = make_plots(args.reports, args.out)
         if not written:
-            raise HyperGSError(f"no vs-fit / vs-x265 / scale reports in {args.bench}")
+            raise HyperGSError(f"no vs-fit / vs-x265 / scale reports in {args.reports}")
         return {"written": [str(p) for p in written]}
     return run
 

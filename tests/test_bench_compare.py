@@ -99,9 +99,15 @@ def test_fit_psnr_at_interpolates_between_rungs():
 
 # ---- refine ----------------------------------------------------------------------------------------------
 
+def test_refine_step_sizes_grow_with_the_steps_up_to_a_cap():
+    from hypergs_blender.refine import REFINE_SCALE_MAX, REFINE_STEPS, refine_steps
+    assert refine_steps(1) == refine_steps(10) == REFINE_STEPS
+    assert refine_steps(30).mean_cells == pytest.approx(2.5 * REFINE_STEPS.mean_cells)
+    assert refine_steps(100).colour == refine_steps(1000).colour == pytest.approx(REFINE_SCALE_MAX * REFINE_STEPS.colour)
+
+
 def test_refine_ladder_matches_refine_params(tiny_video):
-    """The bench takes every K from one refinement run; each K must equal refine_params(K) (this fails
-    if refine_params' step size starts to depend on K)."""
+    """The bench times every K as its own run; each K must equal refine_params(K)."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)
     params = encode_frames(frames, FloorEncoder(), frames_layout(frames, FloorEncoder(), gaussians=16))
     ladder = vs_fit.refine_ladder(params, frames, (1, 4))

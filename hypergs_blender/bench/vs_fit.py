@@ -14,7 +14,8 @@ import numpy as np
 
 from ..encode import FloorEncoder, encode_frames, frames_layout
 from ..network import resolve_encoder
-from ..refine import REFINE_STEPS, fit, random_init, refine_params
+from ..refine import fit, random_init, refine_params
+from ..refine import refine_steps as refine_step_sizes
 from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, load_frames, machine_report, parse_frames, psnr_of, render,
                      resolve_device, say, sync)
 
@@ -26,23 +27,17 @@ FIT_INITS = ("random", "grid")
 
 
 def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_STEPS, device: str = "cpu"):
-    """refine.refine_params(params, frames, K) for every K in `steps`, from one run of max(steps) steps:
-    refinement keeps its step size constant, so the state after K steps of the long run is
-    refine_params(K). The hook that copies each rung's params out is not timed.
-    Returns [(K, refined params [T, N, 8] numpy, seconds)] in the order of `steps`."""
-    wanted, taken, overhead = set(steps), {}, 0.0
-    started = time.perf_counter()
-
-    def on_step(k, params_fn):
-        nonlocal overhead
-        if k in wanted:
-            sync(device)
-            now = time.perf_counter()
-            taken[k] = (params_fn().detach().cpu().numpy(), now - started - overhead)
-            overhead += time.perf_counter() - now
-
-    refine_params(params, frames, max(steps), on_step=on_step, device=device)
-    return [(k, *taken[k]) for k in steps]
+    """refine.refine_params(params, frames, K) for every K in `steps`, each its own run (the step size
+    depends on K: refine.refine_steps), timed. Returns [(K, refined params [T, N, 8] numpy, seconds)] in
+    the order of `steps`."""
+    out = []
+    for k in steps:
+        sync(device)
+        started = time.perf_counter()
+        refined = refine_params(params, frames, k, device=device)
+        sync(device)
+        out.append((k, refined, time.perf_counter() - started))
+    return out
 
 
 def fit_from(frames: np.ndarray, n: int, iters: int, init: str = "random", device: str = "cpu", seed: int = 0):
@@ -146,7 +141,8 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
               "settings": {"gaussians": list(gaussians), "refine_steps": refine_steps, "fit_iters": fit_iters,
                            "fit_inits": list(fit_inits), "sizes": [str(s) for s in sizes], "frames": frames,
                            "start": start, "encoder": encoder.name, "fit_budget_s": fit_budget, "fit_all": fit_all,
-                           "refine_steps_sizes": asdict(REFINE_STEPS), "timing": "seconds per frame, wall clock, all frames as one batch"},
+                           "refine_steps_sizes": {k: asdict(refine_step_sizes(k)) for k in refine_steps},
+                           "timing": "seconds per frame, wall clock, all frames as one batch"},
               "videos": []}
     warmed = False
     for path in videos:

@@ -40,10 +40,11 @@ def make_pan_clip(path, width=432, height=240, frames=70):
     return path
 
 
-def run_blender_session(script, work: Path, encoder: str, timeout: float, env: dict | None = None) -> tuple[dict, str]:
+def run_blender_session(script, work: Path, encoder: str, timeout: float, env: dict | None = None) -> dict:
     """Build the extension zip, then run `script ZIP WORK OUT.json` in a fresh Python (bpy can be
     imported once per process) with $HYPERGS_ENCODER defaulting to `encoder` and the variables `env`
-    added. Returns the steps' results and the session's console output (Blender prints render reports there)."""
+    added. Returns the steps' results, with the session's console output under "console" (Blender prints
+render reports there)."""
     from hypergs_blender.bench.blender import build_zip
     zip_path = build_zip(work / "dist")
     env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder),
@@ -54,7 +55,7 @@ def run_blender_session(script, work: Path, encoder: str, timeout: float, env: d
                           capture_output=True, text=True, timeout=timeout)
     if not out.is_file():
         pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return json.loads(out.read_text()), proc.stdout + proc.stderr
+    return dict(json.loads(out.read_text()), console=proc.stdout + proc.stderr)
 
 
 def step(session, name):

@@ -38,7 +38,7 @@ SESSION_TIMEOUT = 600
 def session(tmp_path_factory):
     work = tmp_path_factory.mktemp("blender")
     make_pan_clip(work / f"{CLIP_NAME}.mp4")
-    return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)[0]
+    return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
 
 
 def test_install_and_enable(session):
@@ -692,56 +692,6 @@ def operator_defaults(bpy, operator_class) -> dict:
     properties = getattr(getattr(bpy.ops, module), name).get_rna_type().properties
     return {p.identifier: p.default for p in properties
             if p.identifier != "rna_type" and hasattr(p, "default") and not getattr(p, "is_array", False)}
-
-
-def viewport_texture_check(bpy, addon):
-    """The viewport's upload path (numpy -> GPU texture -> drawn) inside a render with a GPU context:
-    Blender has no window here, so view_draw itself cannot run; this checks what it draws with."""
-    import gpu
-    draw = _import(addon, "engine.draw")
-    found = {}
-
-    class Probe(bpy.types.RenderEngine):
-        bl_idname = "HYPERGS_TEST_PROBE"
-        bl_label = "probe"
-        bl_use_gpu_context = True
-
-        def render(self, depsgraph):
-            try:
-                rng = np.random.default_rng(0)
-                rgba = rng.uniform(0, 1, (24, 40, 4)).astype(np.float32)
-                texture = draw.make_texture(rgba)
-                offscreen = gpu.types.GPUOffScreen(40, 24, format="RGBA32F")
-                with offscreen.bind():
-                    from gpu_extras.presets import draw_texture_2d
-                    from mathutils import Matrix
-                    fb = gpu.state.active_framebuffer_get()
-                    fb.clear(color=(0, 0, 0, 0))
-                    with gpu.matrix.push_pop():
-                        gpu.matrix.load_matrix(Matrix.Identity(4))
-                        gpu.matrix.load_projection_matrix(Matrix.Identity(4))
-                        gpu.matrix.translate((-1, -1))
-                        gpu.matrix.scale((2 / 40, 2 / 24))
-                        draw_texture_2d(texture, (0, 0), 40, 24)
-                    pixels = np.array(fb.read_color(0, 0, 40, 24, 4, 0, "FLOAT").to_list(), np.float32)
-                offscreen.free()
-                found["max_error"] = float(np.abs(pixels.reshape(24, 40, 4) - rgba).max())
-            except Exception as e:  # no GPU context on this machine
-                found["skipped"] = f"no GPU drawing here: {type(e).__name__}: {e}"
-            result = self.begin_result(0, 0, 4, 4)
-            self.end_result(result)
-
-    bpy.utils.register_class(Probe)
-    sc = bpy.context.scene
-    engine = sc.render.engine
-    sc.render.engine = Probe.bl_idname
-    sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = 4, 4, 100
-    try:
-        bpy.ops.render.render()
-    finally:
-        sc.render.engine = engine
-        bpy.utils.unregister_class(Probe)
-    return found or {"skipped": "the probe engine did not run"}
 
 
 if __name__ == "__main__":

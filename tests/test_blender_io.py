@@ -29,9 +29,7 @@ SESSION_TIMEOUT = 300
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     work = tmp_path_factory.mktemp("blender_io")
-    results, console = run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
-    results["console"] = console
-    return results
+    return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
 
 
 def test_import_npz_builds_a_clip_object(session):

@@ -34,9 +34,7 @@ SESSION_TIMEOUT = 300
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     work = tmp_path_factory.mktemp("blender_sequencer")
-    results, console = run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
-    results["console"] = console
-    return results
+    return run_blender_session(__file__, work, ENCODER, SESSION_TIMEOUT)
 
 
 def test_menus_offer_the_conversion_with_a_dialog(session):

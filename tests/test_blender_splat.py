@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_blender_session, step
+from hypergs_blender.bench.blender import in_gpu_context
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_blender_addon import _import  # noqa: E402
@@ -33,14 +34,14 @@ SESSION_TIMEOUT = 400
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    return run_blender_session(__file__, tmp_path_factory.mktemp("splat"), ENCODER, SESSION_TIMEOUT)[0]
+    return run_blender_session(__file__, tmp_path_factory.mktemp("splat"), ENCODER, SESSION_TIMEOUT)
 
 
 @pytest.fixture(scope="module")
 def no_egl_session(tmp_path_factory):
     from hypergs_blender.bench.blender import NO_EGL
     return run_blender_session(__file__, tmp_path_factory.mktemp("splat_no_egl"), ENCODER, SESSION_TIMEOUT,
-                               env=NO_EGL)[0]
+                               env=NO_EGL)
 
 
 def gpu_or_skip(session):
@@ -202,41 +203,22 @@ def viewport_window_check(bpy, addon, numpy_reference):
              "out at the top right": ((200.0, 200.0, *SIZE), (0, 101, 200, 100)),
              "between pixels": ((-10.5, 120.25, *SIZE), (10, 21, 323, 180))}
     windows = {name: list(draw.visible_window(rect, 400, 300)[1]) for name, (rect, _) in cases.items()}
-    found = {}
 
-    class Probe(bpy.types.RenderEngine):
-        bl_idname = "HYPERGS_TEST_SPLAT_PROBE"
-        bl_label = "probe"
-        bl_use_gpu_context = True
-
-        def render(self, depsgraph):
+    def work(depsgraph) -> dict:
+        found = {}
+        for name, window in windows.items():
+            x, y, w, h = window
+            image = splat.SplatImage(w, h)
             try:
-                for name, window in windows.items():
-                    x, y, w, h = window
-                    image = splat.SplatImage(w, h)
-                    try:
-                        image.draw(splat_rows(clips, *SIZE, window), (x, y))
-                        pixels = image.read()[::-1]
-                    finally:
-                        image.free()
-                    d = np.abs(pixels[..., :3] - reference[y:y + h, x:x + w, :3])
-                    found[name] = dict(mean_error=float(d.mean()), max_error=float(d.max()))
-            except Exception as e:
-                found["error"] = f"{type(e).__name__}: {e}"
-            result = self.begin_result(0, 0, 4, 4)
-            self.end_result(result)
+                image.draw(splat_rows(clips, *SIZE, window), (x, y))
+                pixels = image.read()[::-1]
+            finally:
+                image.free()
+            d = np.abs(pixels[..., :3] - reference[y:y + h, x:x + w, :3])
+            found[name] = dict(mean_error=float(d.mean()), max_error=float(d.max()))
+        return found
 
-    bpy.utils.register_class(Probe)
-    engine = scene.render.engine
-    saved = scene.render.resolution_x, scene.render.resolution_y
-    scene.render.engine = Probe.bl_idname
-    scene.render.resolution_x, scene.render.resolution_y = 4, 4
-    try:
-        bpy.ops.render.render()
-    finally:
-        scene.render.engine = engine
-        scene.render.resolution_x, scene.render.resolution_y = saved
-        bpy.utils.unregister_class(Probe)
+    found = in_gpu_context(bpy, work)
     if "error" in found:
         raise RuntimeError(found["error"])
     return dict(windows=windows, expected_windows={name: list(w) for name, (_, w) in cases.items()}, cases=found)

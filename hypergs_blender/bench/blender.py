@@ -214,6 +214,37 @@ def add_movie_strip(bpy, scene, path, frame_start=1, name="clip"):
     return strip
 
 
+def in_gpu_context(bpy, work) -> dict:
+    """Run `work(depsgraph) -> dict` inside a render whose engine has a GPU context (bl_use_gpu_context:
+    Blender has no window in background mode, so this is where the gpu module draws offscreen), with a
+    throw-away 4 x 4 frame; the scene's engine and size are put back. An exception in `work` comes back as
+    {"error": "Type: message"} (it cannot cross Blender's render call)."""
+    found = {}
+
+    class Probe(bpy.types.RenderEngine):
+        bl_idname = "HYPERGS_GPU_PROBE"
+        bl_label = "probe"
+        bl_use_gpu_context = True
+
+        def render(self, depsgraph):
+            try:
+                found.update(work(depsgraph))
+            except Exception as e:
+                found["error"] = f"{type(e).__name__}: {e}"
+            self.end_result(self.begin_result(0, 0, 4, 4))
+
+    r = bpy.context.scene.render
+    saved = r.engine, r.resolution_x, r.resolution_y, r.resolution_percentage
+    bpy.utils.register_class(Probe)
+    r.engine, r.resolution_x, r.resolution_y, r.resolution_percentage = Probe.bl_idname, 4, 4, 100
+    try:
+        bpy.ops.render.render()
+    finally:
+        r.engine, r.resolution_x, r.resolution_y, r.resolution_percentage = saved
+        bpy.utils.unregister_class(Probe)
+    return found
+
+
 def render_png(bpy, scene, frame: int, path) -> float:
     """F12 of one frame, saved as an 8-bit PNG with the scene's colour management; returns seconds."""
     scene.frame_set(frame)
@@ -327,7 +358,9 @@ def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> N
     scene.frame_start, scene.frame_end = first, end - 1
     t = time.perf_counter()
     if args.gaussians or args.cell:
-        options = dict(quality="CUSTOM", gaussian_count=args.gaussians or 0, cell_size=args.cell or 6.0)
+        from ..encode import QUALITY
+        options = dict(quality="CUSTOM", gaussian_count=args.gaussians or 0,
+                       cell_size=args.cell or QUALITY["standard"]["cell"])
     else:
         options = dict(quality=args.quality.upper())
     bpy.ops.hypergs.convert_strip(**options)

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from ..errors import HyperGSError
-from .blender import NO_EGL, build_zip, install_extension, start_blender
+from .blender import NO_EGL, build_zip, in_gpu_context, install_extension, start_blender
 from .common import machine_report
 from .raster import realistic_params
 
@@ -91,45 +91,26 @@ def _viewport_times(bpy, addon, width: int, height: int, repeats: int) -> dict:
     splat = importlib.import_module(f"{addon.__name__}.engine.splat")
     geometry = importlib.import_module(f"{addon.__name__}.engine.geometry")
     from ..splat import splat_rows
-    found = {}
 
-    class Probe(bpy.types.RenderEngine):
-        bl_idname = "HYPERGS_BENCH_VIEWPORT"
-        bl_label = "bench"
-        bl_use_gpu_context = True
+    def work(depsgraph) -> dict:
+        image = splat.SplatImage(width, height)
+        finish = gpu.types.GPUFrameBuffer(color_slots=image.texture)
+        rows_s, draw_s = [], []
+        for _ in range(repeats + 1):
+            started = time.perf_counter()
+            clips = [(p, cw, ch) for _, p, cw, ch in geometry.evaluated_clips(depsgraph)]
+            rows = splat_rows(clips, width, height)
+            drawn = time.perf_counter()
+            image.draw(rows)
+            with finish.bind():
+                finish.read_color(0, 0, 1, 1, 4, 0, "FLOAT")
+            rows_s.append(drawn - started)
+            draw_s.append(time.perf_counter() - drawn)
+        image.free()
+        return dict(instances=len(rows), rows_median_s=round(statistics.median(rows_s[1:]), 4),
+                    draw_median_s=round(statistics.median(draw_s[1:]), 4))
 
-        def render(self, depsgraph):
-            try:
-                image = splat.SplatImage(width, height)
-                finish = gpu.types.GPUFrameBuffer(color_slots=image.texture)
-                rows_s, draw_s = [], []
-                for _ in range(repeats + 1):
-                    started = time.perf_counter()
-                    clips = [(p, cw, ch) for _, p, cw, ch in geometry.evaluated_clips(depsgraph)]
-                    rows = splat_rows(clips, width, height)
-                    drawn = time.perf_counter()
-                    image.draw(rows)
-                    with finish.bind():
-                        finish.read_color(0, 0, 1, 1, 4, 0, "FLOAT")
-                    rows_s.append(drawn - started)
-                    draw_s.append(time.perf_counter() - drawn)
-                image.free()
-                found.update(instances=len(rows), rows_median_s=round(statistics.median(rows_s[1:]), 4),
-                             draw_median_s=round(statistics.median(draw_s[1:]), 4))
-            except Exception as e:
-                found["error"] = f"{type(e).__name__}: {e}"
-            self.end_result(self.begin_result(0, 0, 4, 4))
-
-    scene = bpy.context.scene
-    saved = scene.render.engine, scene.render.resolution_x, scene.render.resolution_y
-    bpy.utils.register_class(Probe)
-    scene.render.engine, scene.render.resolution_x, scene.render.resolution_y = Probe.bl_idname, 4, 4
-    try:
-        bpy.ops.render.render()
-    finally:
-        scene.render.engine, scene.render.resolution_x, scene.render.resolution_y = saved
-        bpy.utils.unregister_class(Probe)
-    return found
+    return in_gpu_context(bpy, work)
 
 
 if __name__ == "__main__":

@@ -26,17 +26,9 @@ def check_output(path, suffixes=(), inputs=()) -> Path:
     path = _path(path)
     if suffixes and path.suffix.lower() not in suffixes:
         raise HyperGSError(f"{path}: the output must end in {', '.join(suffixes)}")
-    folder = path.parent
-    if not folder.is_dir():
-        raise HyperGSError(f"{path}: the folder {folder} does not exist")
     if path.is_dir():
         raise HyperGSError(f"{path}: is a folder, not a file")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise HyperGSError(f"{path}: the folder {folder} is not writable")
-    for source in inputs:
-        if same_file(path, source):
-            raise HyperGSError(f"{path}: is the input {source}; choose another output")
-    return path
+    return _check_target(path, path.parent, inputs)
 
 
 def check_output_folder(path, inputs=()) -> Path:
@@ -45,7 +37,12 @@ def check_output_folder(path, inputs=()) -> Path:
     path = _path(path)
     if path.exists() and not path.is_dir():
         raise HyperGSError(f"{path}: is a file, not a folder")
-    folder = path if path.is_dir() else path.parent
+    return _check_target(path, path if path.is_dir() else path.parent, inputs)
+
+
+def _check_target(path: Path, folder: Path, inputs) -> Path:
+    """What check_output and check_output_folder share: `folder` (where `path` is written) exists and is
+    writable, and `path` is none of `inputs`."""
     if not folder.is_dir():
         raise HyperGSError(f"{path}: the folder {folder} does not exist")
     if not os.access(folder, os.W_OK | os.X_OK):

@@ -380,6 +380,31 @@ def test_ctrl_c_and_sigterm_clean_up_and_say_one_line(tmp_path, video, sig, stat
     assert [f.name for f in tmp_path.iterdir()] == [video.name]
 
 
+def test_a_signal_inside_the_jit_is_raised_again_once_out_of_it():
+    """numba's JIT runs Python callbacks from native code (llvmlite): Ctrl-C raised there was dropped
+    (the encode went on to exit 0) or crashed the process, so the handler raises it again later."""
+    from hypergs_blender.commands import cli
+    namespace = {}
+    exec(compile("import sys\nframe = sys._getframe()", "/site-packages/llvmlite/binding/executionengine.py",
+                 "exec"), namespace)
+    jit_frame, our_frame = namespace["frame"], sys._getframe()
+    received = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        assert cli._interrupt(signal.SIGINT, jit_frame) is None  # not raised there...
+        deadline = time.time() + 5
+        while not received and time.time() < deadline:
+            time.sleep(0.01)
+        assert received == [signal.SIGINT]  # ...but sent again, to land outside the JIT
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    with pytest.raises(KeyboardInterrupt) as raised:
+        cli._interrupt(signal.SIGINT, our_frame)
+    assert type(raised.value) is KeyboardInterrupt
+    with pytest.raises(cli.Terminated):
+        cli._interrupt(signal.SIGTERM, our_frame)
+
+
 # ---- 5. unsafe loads -------------------------------------------------------------------------------
 
 def test_every_torch_load_is_weights_only():

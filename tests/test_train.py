@@ -69,12 +69,12 @@ def test_tiny_conv_model_overfits_one_frame():
     assert psnrs[-1] > psnrs[0] + 5, (psnrs[0], psnrs[-1])
 
 
-def training_args(out, steps, preset, minutes=None):
+def training_args(out, steps, preset, minutes=None, loader_threads=1):
     parser = argparse.ArgumentParser()
     train_commands.add_commands(parser.add_subparsers())
     argv = ["train", "--out", str(out), "--preset", preset, "--data", "procedural:1", "--steps", str(steps),
             "--batch", "2", "--size", "32", "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000",
-            "--checkpoint-every", "2", "--warmup", "2"] + ([] if minutes is None else ["--minutes", str(minutes)])
+            "--checkpoint-every", "2", "--warmup", "2", "--loader-threads", str(loader_threads)] + ([] if minutes is None else ["--minutes", str(minutes)])
     return parser.parse_args(argv)
 
 
@@ -86,7 +86,7 @@ def test_resume_continues_exactly(tmp_path, monkeypatch, preset):
     train.run(training_args(tmp_path / "straight", 6, preset))
     train.run(training_args(tmp_path / "resumed", 6, preset, minutes=0))  # interrupted after its first step
     assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)["step"] == 1
-    train.run(training_args(tmp_path / "resumed", 6, preset))
+    train.run(training_args(tmp_path / "resumed", 6, preset, loader_threads=3))  # workers change no batch
     straight = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=True)
     resumed = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)
     assert resumed["step"] == straight["step"] == 6 and resumed["cpu_seconds"] > 0
@@ -108,9 +108,10 @@ def test_evaluator_encodes_as_the_runtime_does(tmp_path):
     from hypergs_blender.metrics import psnr
     from hypergs_blender.render import render_params
     with pytest.warns(UserWarning, match="prepare-data"):  # no held-out photos here: procedural clips
-        evaluator = train.Evaluator(tmp_path)
-    results = evaluator(ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))).eval(), torch.device("cpu"))
-    frames = evaluator.sets["val"]
+        model = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))).eval()
+        evaluator = train.Evaluator(model, tmp_path)
+    results = evaluator(model, torch.device("cpu"))
+    frames = evaluator.sets["val", 8][1]
     for cell, n in ((8, 1024), (4, 4096)):
         layout = frames_layout(frames, FloorEncoder(), cell=cell)
         floor = render_params(encode_frames(frames, FloorEncoder(), layout), 256, 256, 256, 256)

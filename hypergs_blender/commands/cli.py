@@ -20,10 +20,16 @@ from .options import Parser, check_paths, command_parser
 COMMAND_MODULES = ["encode", "evaluate", "fit", "train", "data", "clips", "bench", "build"]
 
 
+# Packages whose Python code runs as callbacks from native code (numba's JIT, through llvmlite's
+# ctypes callbacks): an exception raised there is printed and dropped, or leaves the compiler in a
+# state that crashed the process (SIGSEGV) now and then.
+_NATIVE_CALLBACK_PACKAGES = ("numba", "llvmlite")
+_SIGNAL_RETRY_SECONDS = 0.05
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM arrived (raised in the main thread, so that every `with` and `finally` cleans up). A
-    KeyboardInterrupt, as Ctrl-C's: native code that checks for signals (numba's parallel kernels) stops
-    cleanly for that one; another exception raised there crashed the process now and then."""
+    KeyboardInterrupt, as Ctrl-C's, so that code which stops on Ctrl-C stops on this too."""
 
 
 def build_parser() -> Parser:
@@ -34,8 +40,25 @@ def build_parser() -> Parser:
     return parser
 
 
-def _terminate(signum, frame):
-    raise Terminated()
+def _in_native_callback(frame) -> bool:
+    while frame is not None:
+        parts = frame.f_code.co_filename.replace("\\", "/").split("/")
+        if any(name in parts for name in _NATIVE_CALLBACK_PACKAGES):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _interrupt(signum, frame):
+    """SIGINT / SIGTERM: raise in the main thread, but never inside the JIT (numba compiling or
+    loading a kernel from its cache): there the signal is raised again a moment later, until it
+    lands in code that can unwind."""
+    if _in_native_callback(frame):
+        timer = threading.Timer(_SIGNAL_RETRY_SECONDS, signal.raise_signal, (signum,))
+        timer.daemon = True
+        timer.start()
+        return
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
 def main(argv=None) -> None:
@@ -44,7 +67,8 @@ def main(argv=None) -> None:
     command = command_parser(parser, args)
     check_paths(command, args)
     in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
+    handled = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, _interrupt) for s in handled} if in_main else {}
     try:
         args.func(args)
     except BaseException as e:
@@ -56,8 +80,8 @@ def main(argv=None) -> None:
         sys.exit(status)
     finally:
         files.discard_pending()
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def _failure(error: BaseException) -> tuple[int, str] | None:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -73,22 +72,27 @@ def rss_mb() -> float:
 
 
 class Prefetcher:
-    """Builds the next batch in a thread while the current step runs (numpy releases the GIL)."""
+    """Builds the next `depth` batches in worker threads while the current step runs (the pixel work
+    runs in nogil Numba kernels). make(step) is a pure function of the step, so the batches, and an
+    exact resume, do not depend on how many workers there are."""
 
-    def __init__(self, make):
-        self.make, self.thread, self.result = make, None, None
+    def __init__(self, make, depth: int = 1):
+        from concurrent.futures import ThreadPoolExecutor
 
-    def start(self, step: int):
-        def work():
-            self.result = (step, self.make(step))
-        self.thread = threading.Thread(target=work, daemon=True)
-        self.thread.start()
+        self.make, self.depth, self.pending = make, depth, {}
+        self.pool = ThreadPoolExecutor(max_workers=depth, thread_name_prefix="prefetch")
 
-    def get(self, step: int):
-        self.thread.join()
-        got_step, batch = self.result
-        assert got_step == step
-        return batch
+    def get(self, step: int, last: int):
+        """The batch of `step`; queues steps up to step + depth (below `last`) behind it."""
+        for s in range(step, min(step + self.depth + 1, last)):
+            if s not in self.pending:
+                self.pending[s] = self.pool.submit(self.make, s)
+        for s in [s for s in self.pending if s < step]:  # after a skip (never in a plain run)
+            self.pending.pop(s).cancel()
+        return self.pending.pop(step).result()
+
+    def close(self):
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -153,8 +157,9 @@ def run(args) -> None:
     sources = data.build_sources(args.data, args.data_root)
     frames_per_clip = 1 if conv else model.cfg.clip_frames
     size = args.size if conv else model.cfg.canvas
-    prefetch = Prefetcher(lambda s: make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size))
-    evaluator = Evaluator(args.data_root, args.eval_videos) if rank == 0 else None
+    prefetch = Prefetcher(lambda s: make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size),
+                          args.loader_threads)
+    evaluator = Evaluator(model, args.data_root, args.eval_videos) if rank == 0 else None
     log = open(out / "log.jsonl", "a") if rank == 0 else None
     if rank == 0:
         print(f"training {config['arch']} model, {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
@@ -173,14 +178,11 @@ def run(args) -> None:
     from tqdm import tqdm
     bar = tqdm(total=args.steps, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
     started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
-    prefetch.start(step)
     amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
     try:
         while step < args.steps:
-            frames = torch.from_numpy(prefetch.get(step)).to(device)
+            frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device, non_blocking=True)
             n = gaussians_for_step(args.gaussians, args.seed, step)
-            if step + 1 < args.steps:
-                prefetch.start(step + 1)
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
@@ -216,6 +218,7 @@ def run(args) -> None:
             if args.minutes is not None and time.perf_counter() - run_started > args.minutes * 60:
                 break
     finally:
+        prefetch.close()
         if rank == 0:
             save()
             bar.close()
@@ -233,40 +236,47 @@ class Evaluator:
     """PSNR on fixed held-out frames at 256 x 256 at two densities (1024 and 4096 Gaussians): the held-out
     photos' pans and procedural clips (`val`), and, for reporting only (never for training decisions),
     the videos given with --eval-videos. Conv models encode the frames as encode.py does (resized to the
-    working size); transformers on their canvas."""
+    working size); transformers on their canvas. The inputs are resized once, here (a machine that
+    cannot resize fails at the start of a run, not at its first evaluation)."""
 
-    def __init__(self, data_root: str, videos=(), frames_per_video: int = 4):
+    def __init__(self, model, data_root: str, videos=(), frames_per_video: int = 4):
         clips = data.validation_clips(data_root, 2, EVAL_SIZE, 8)
-        self.sets = {"val": (clips.reshape(-1, EVAL_SIZE, EVAL_SIZE, 3) * 255 + 0.5).astype(np.uint8)}
+        targets = {"val": (clips.reshape(-1, EVAL_SIZE, EVAL_SIZE, 3) * 255 + 0.5).astype(np.uint8)}
         for path in map(Path, videos):
-            self.sets[f"video_{path.stem}"] = read_frames(path, frames_per_video, size=EVAL_SIZE)[0]
+            targets[f"video_{path.stem}"] = read_frames(path, frames_per_video, size=EVAL_SIZE)[0]
+        # (name, cell) -> (network input, target)
+        self.sets = {(name, cell): (self._input(model, frames, cell), frames)
+                     for name, frames in targets.items() for cell in EVAL_CELLS}
+
+    @staticmethod
+    def _input(model, frames: np.ndarray, cell: int) -> np.ndarray:
+        if isinstance(model, ConvGS):
+            work = EVAL_SIZE * model.cfg.stride // cell
+            return np.stack([resize_exact(f, work, work) for f in frames]).astype(np.float32) / 255
+        canvas, t = model.cfg.canvas, model.cfg.clip_frames
+        clips = np.stack([resize_exact(f, canvas, canvas) for f in frames]).astype(np.float32) / 255
+        return clips.reshape(-1, t, canvas, canvas, 3)  # the evaluation sets hold multiples of 4 frames
 
     @torch.no_grad()
     def __call__(self, model, device) -> dict:
         results = {}
-        for name, frames in self.sets.items():
+        for (name, cell), (inputs, frames) in self.sets.items():
             target = torch.from_numpy(frames).float().to(device) / 255
-            for cell in EVAL_CELLS:
-                params = self._encode(model, frames, cell, device)
-                render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
-                mse = ((render - target) ** 2).mean((1, 2, 3))
-                n = (EVAL_SIZE // cell) ** 2
-                results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
+            params = self._encode(model, inputs, cell, device)
+            render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
+            mse = ((render - target) ** 2).mean((1, 2, 3))
+            n = (EVAL_SIZE // cell) ** 2
+            results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
         return results
 
     @staticmethod
-    def _encode(model, frames: np.ndarray, cell: int, device) -> torch.Tensor:
+    def _encode(model, inputs: np.ndarray, cell: int, device) -> torch.Tensor:
         n = (EVAL_SIZE // cell) ** 2
         if isinstance(model, ConvGS):
-            work = EVAL_SIZE * model.cfg.stride // cell
-            small = np.stack([resize_exact(f, work, work) for f in frames]).astype(np.float32) / 255
-            params = model(torch.from_numpy(small).to(device)).float()
+            params = model(torch.from_numpy(inputs).to(device)).float()
             params[..., 2:4] *= cell / model.cfg.stride  # working pixels -> 256 x 256 pixels
             return params
-        canvas, t = model.cfg.canvas, model.cfg.clip_frames
-        clips = np.stack([resize_exact(f, canvas, canvas) for f in frames]).astype(np.float32) / 255
-        clips = clips.reshape(-1, t, canvas, canvas, 3)  # the evaluation sets hold multiples of 4 frames
         anchors, spacing = anchor_inputs(n, device)
-        params = model(torch.from_numpy(clips).to(device), anchors, spacing).float().reshape(-1, n, 8)
-        params[..., 2:4] *= EVAL_SIZE / canvas
+        params = model(torch.from_numpy(inputs).to(device), anchors, spacing).float().reshape(-1, n, 8)
+        params[..., 2:4] *= EVAL_SIZE / model.cfg.canvas
         return params

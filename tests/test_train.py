@@ -74,7 +74,8 @@ def training_args(out, steps, preset, minutes=None, loader_threads=1):
     train_commands.add_commands(parser.add_subparsers())
     argv = ["train", "--out", str(out), "--preset", preset, "--data", "procedural:1", "--steps", str(steps),
             "--batch", "2", "--size", "32", "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000",
-            "--checkpoint-every", "2", "--warmup", "2", "--loader-threads", str(loader_threads)] + ([] if minutes is None else ["--minutes", str(minutes)])
+            "--checkpoint-every", "2", "--warmup", "2", "--loader-threads", str(loader_threads)]
+    argv += [] if minutes is None else ["--minutes", str(minutes)]
     return parser.parse_args(argv)
 
 
@@ -111,7 +112,7 @@ def test_evaluator_encodes_as_the_runtime_does(tmp_path):
         model = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))).eval()
         evaluator = train.Evaluator(model, tmp_path)
     results = evaluator(model, torch.device("cpu"))
-    frames = evaluator.sets["val", 8][1]
+    frames = evaluator.sets["val"][0]
     for cell, n in ((8, 1024), (4, 4096)):
         layout = frames_layout(frames, FloorEncoder(), cell=cell)
         floor = render_params(encode_frames(frames, FloorEncoder(), layout), 256, 256, 256, 256)

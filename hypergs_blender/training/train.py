@@ -87,8 +87,6 @@ class Prefetcher:
         for s in range(step, min(step + self.depth + 1, last)):
             if s not in self.pending:
                 self.pending[s] = self.pool.submit(self.make, s)
-        for s in [s for s in self.pending if s < step]:  # after a skip (never in a plain run)
-            self.pending.pop(s).cancel()
         return self.pending.pop(step).result()
 
     def close(self):
@@ -181,7 +179,7 @@ def run(args) -> None:
     amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
     try:
         while step < args.steps:
-            frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device, non_blocking=True)
+            frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device)
             n = gaussians_for_step(args.gaussians, args.seed, step)
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
             for group in optimizer.param_groups:
@@ -244,9 +242,9 @@ class Evaluator:
         targets = {"val": (clips.reshape(-1, EVAL_SIZE, EVAL_SIZE, 3) * 255 + 0.5).astype(np.uint8)}
         for path in map(Path, videos):
             targets[f"video_{path.stem}"] = read_frames(path, frames_per_video, size=EVAL_SIZE)[0]
-        # (name, cell) -> (network input, target)
-        self.sets = {(name, cell): (self._input(model, frames, cell), frames)
-                     for name, frames in targets.items() for cell in EVAL_CELLS}
+        # name -> (target frames, {cell: network input})
+        self.sets = {name: (frames, {cell: self._input(model, frames, cell) for cell in EVAL_CELLS})
+                     for name, frames in targets.items()}
 
     @staticmethod
     def _input(model, frames: np.ndarray, cell: int) -> np.ndarray:
@@ -260,13 +258,14 @@ class Evaluator:
     @torch.no_grad()
     def __call__(self, model, device) -> dict:
         results = {}
-        for (name, cell), (inputs, frames) in self.sets.items():
+        for name, (frames, inputs) in self.sets.items():
             target = torch.from_numpy(frames).float().to(device) / 255
-            params = self._encode(model, inputs, cell, device)
-            render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
-            mse = ((render - target) ** 2).mean((1, 2, 3))
-            n = (EVAL_SIZE // cell) ** 2
-            results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
+            for cell, cell_inputs in inputs.items():
+                params = self._encode(model, cell_inputs, cell, device)
+                render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
+                mse = ((render - target) ** 2).mean((1, 2, 3))
+                n = (EVAL_SIZE // cell) ** 2
+                results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
         return results
 
     @staticmethod

@@ -7,6 +7,13 @@ Large frames are encoded in tiles (`tiles`): windows of at most TILE working pix
 overlap by the network's reach, so every Gaussian is predicted from the same pixels as in one pass
 over the whole frame (seamless by construction), and memory is bounded.
 
+Memory (measured on a 1080p frame at the Standard density, a 1280 x 720 working frame): a forward
+pass's activations are ~0.6 GB per working frame. onnxruntime keeps what a run allocated in its arena
+for the session's life, and its memory pattern planner keeps a plan sized for every input shape it
+saw: two frames per pass with the planner held 2.4 GB after a conversion. So one working frame per
+pass (BATCH_PIXELS; no slower), no memory pattern (0.8 GB, no slower), and `release()` after a
+conversion gives the arena back (0.3 GB).
+
 Only the ONNX backend works without torch: inside Blender torch is usually absent (and the extension
 ships no safetensors), and this module imports torch lazily.
 """
@@ -23,7 +30,7 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 BUNDLED_NAME = "hypergs"
 BACKENDS = ("auto", "torch", "onnx")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
-BATCH_PIXELS = 1 << 21  # working pixels per forward pass (bounds memory)
+BATCH_PIXELS = 1 << 20  # working pixels per forward pass (bounds memory: one 720p working frame)
 
 
 def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[int, int, int, int]]:
@@ -57,6 +64,17 @@ class NetworkEncoder:
         self.provider = session.get_providers()[0] if session is not None else None
         self.stride, self.multiple, self.reach, self.tile = int(stride), int(multiple), int(reach), int(tile)
         self.granule = self.multiple // self.stride
+
+    def release(self) -> None:
+        """Give back the memory the runtime kept from the passes so far (onnxruntime's arena; torch's
+        CPU allocator keeps none): call it after a conversion. The encoder stays usable."""
+        if self.session is not None:
+            import onnxruntime as ort
+            options = ort.RunOptions()
+            options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
+            # The arena frees the regions no tensor uses at the end of a run that asks for it: a tiny one.
+            tiny = np.zeros((1, self.multiple, self.multiple, 3), np.float32)
+            self.session.run(None, {self.session.get_inputs()[0].name: tiny}, options)
 
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         """Where the tiles' cores meet on a working frame of width x height: (columns, rows)."""
@@ -124,6 +142,7 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
     import onnxruntime as ort
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.enable_mem_pattern = False  # a buffer plan per input shape, kept: 2x the memory, no faster
     options.intra_op_num_threads = threads
     session = ort.InferenceSession(str(onnx_path), options, providers=providers or ["CPUExecutionProvider"])
 

@@ -1,6 +1,6 @@
 """Clips linked to an external .hgs file, read through the session's frame cache (com/cache.py over
 hypergs_blender/io/cache.py: files opened lazily, no handle held, a small LRU of decoded frames).
-No bpy here: callers pass absolute paths."""
+Callers pass absolute paths."""
 from __future__ import annotations
 
 import numpy as np

@@ -63,6 +63,14 @@ def test_quantizer_error_within_half_a_step(seed, bits, t, n):
     assert np.all(domain_error(params, decoded) <= q.max_error() * (1 + 1e-5) + 1e-5)
 
 
+def test_ranges_fitted_frame_by_frame_are_those_of_the_whole_clip():
+    params = moving_params(np.random.default_rng(5), 6, 40)
+    whole, streamed = Quantizer.fit(params, 8), Quantizer.fit(iter(params), 8)
+    assert (whole.lo, whole.hi) == (streamed.lo, streamed.hi)
+    with pytest.raises(CodecError, match="NaN"):
+        Quantizer.fit(iter([params[0], np.full((2, 8), np.nan, np.float32)]))
+
+
 def test_rotation_is_taken_modulo_pi():
     p = random_params(np.random.default_rng(1), 1, 50)
     turned = p.copy()

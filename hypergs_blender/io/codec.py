@@ -100,14 +100,18 @@ class Quantizer:
         object.__setattr__(self, "hi", hi)
 
     @classmethod
-    def fit(cls, params: np.ndarray, bits=8) -> "Quantizer":
-        """Ranges that just cover `params` [..., N, 8] (every value is then within half a step)."""
-        check_params(params)
-        flat = to_domain(params.reshape(-1, NUM_PARAMS))
-        if flat.shape[0] == 0:
-            lo, hi = np.zeros(NUM_PARAMS), np.zeros(NUM_PARAMS)
-        else:
-            lo, hi = flat.min(axis=0), flat.max(axis=0)
+    def fit(cls, params, bits=8) -> "Quantizer":
+        """Ranges that just cover `params` [..., N, 8], or an iterable of such arrays (e.g. a clip's frames
+        read one at a time from its cache): every value is then within half a step."""
+        lo, hi = np.zeros(NUM_PARAMS), np.zeros(NUM_PARAMS)
+        seen = False
+        for part in [params] if isinstance(params, np.ndarray) else params:
+            check_params(part)
+            flat = to_domain(np.asarray(part).reshape(-1, NUM_PARAMS))
+            if flat.shape[0]:
+                lo = np.minimum(lo, flat.min(axis=0)) if seen else flat.min(axis=0)
+                hi = np.maximum(hi, flat.max(axis=0)) if seen else flat.max(axis=0)
+                seen = True
         limits = np.array([LOG_LIMIT if t == LOG else LINEAR_LIMIT for t in TRANSFORMS])
         lo, hi = np.clip(lo, -limits, limits), np.clip(hi, -limits, limits)  # values past them get clipped
         lo[4], hi[4] = 0.0, ROTATION_PERIOD

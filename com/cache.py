@@ -30,6 +30,7 @@ from bpy.app.handlers import persistent
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io.cache import FrameCache
 from ..hypergs_blender.io.files import AtomicOutput, write_bytes
+from . import add_handlers, remove_handlers
 from .paths import stored_path
 
 FRAMES = FrameCache()
@@ -201,10 +202,8 @@ HANDLERS = (("save_pre", _save_pre), ("save_post", _save_post), ("save_post_fail
 
 
 def register():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).append(handler)
+    add_handlers(HANDLERS)
 
 
 def unregister():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).remove(handler)
+    remove_handlers(HANDLERS)

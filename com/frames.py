@@ -37,7 +37,7 @@ from bpy.app.handlers import persistent
 
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.points import clip_frame_index, params_to_points
-from . import cache
+from . import add_handlers, cache, remove_handlers
 from .mesh import NOTHING, SHOWN, read_points, write_frame
 
 _loaded: dict = {}  # mesh session uid -> (frame, points): what the mesh was given, to tell edits cheaply
@@ -190,10 +190,8 @@ HANDLERS = (("frame_change_pre", _frame_change_pre), ("undo_post", _after_undo),
 
 
 def register():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).append(handler)
+    add_handlers(HANDLERS)
 
 
 def unregister():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).remove(handler)
+    remove_handlers(HANDLERS)

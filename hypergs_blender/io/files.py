@@ -143,6 +143,27 @@ class AtomicOutput:
             raise HyperGSError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
 
 
+class StreamingWriter:
+    """Mixin of the streaming writers (.hgs, USD): `close()` finishes the file and moves it into place,
+    `abort()` drops it (the file at the path stays as it was); as a context manager, an exception
+    inside `with` aborts."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
 def discard_pending() -> None:
     """Remove every temporary file not yet committed (the command line calls this on any exit)."""
     for temp in list(_pending):

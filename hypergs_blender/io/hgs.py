@@ -50,7 +50,7 @@ import numpy as np
 from .. import limits
 from .codec import (ROTATION_PERIOD, TRANSFORMS, CodecError, Quantizer, clip_bits, decode_float16_group,
                     decode_group, encode_float16_group, encode_group)
-from .files import AtomicOutput
+from .files import AtomicOutput, StreamingWriter
 from ..errors import HyperGSError
 from ..gaussians import MAX_FPS, MAX_GRID, NUM_PARAMS, GaussianVideo
 
@@ -182,7 +182,7 @@ def _json_default(value):
     raise TypeError(f"cannot store {type(value).__name__} in .hgs metadata")
 
 
-class HgsWriter:
+class HgsWriter(StreamingWriter):
     """Streaming .hgs writer: `write(params)` any number of frames at a time; memory holds one group.
 
         with HgsWriter(path, 256, 256, 1000, Quantizer.fit(params, 8)) as w:
@@ -307,15 +307,6 @@ class HgsWriter:
         """Stop without producing a file (the file at the path, if any, stays as it was)."""
         self._file = None
         self._output.discard()
-
-    def __enter__(self) -> "HgsWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 class HgsReader:

@@ -36,7 +36,7 @@ import numpy as np
 from .. import limits
 from ..errors import HyperGSError, reason
 from ..gaussians import NUM_PARAMS, GaussianVideo
-from .files import AtomicOutput
+from .files import AtomicOutput, StreamingWriter
 
 ROOT_PATH = "/GaussianVideo"
 PRIM_PATH = "/GaussianVideo/Gaussians"
@@ -52,7 +52,7 @@ class UsdError(HyperGSError):
 SAVE_EVERY = 32  # frames a binary (crate) USD writer holds in memory between saves
 
 
-class UsdWriter:
+class UsdWriter(StreamingWriter):
     """Streaming USD writer: `write(params)` frames [T, N, 8] or one [N, 8], in order; `close()` finishes
     the file (use it as a context manager). Only a complete file appears at `path` (files.AtomicOutput):
     on an exception inside `with`, or `abort()`, the file there stays as it was.
@@ -171,15 +171,6 @@ class UsdWriter:
     def abort(self) -> None:
         self._stage = None
         self._output.discard()
-
-    def __enter__(self) -> "UsdWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def export_usd(video: GaussianVideo, path, start_frame: int = 1, prim_path: str = PRIM_PATH) -> None:

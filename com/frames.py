@@ -90,16 +90,22 @@ def _same(mesh, points: dict) -> bool:
         for name in ("position", "scale", "rotation", "color"))
 
 
-def keep_edits(obj) -> bool:
-    """If the clip's mesh differs from what its frame holds, make the mesh's points that frame's
-    override (a copy of the mesh). Main thread, Object Mode. Returns whether it made one."""
+def holds_edits(obj) -> bool:
+    """Whether the clip's mesh differs from what the frame it shows holds (its override or the cache)."""
     mesh = obj.data
     frame = mesh.get(SHOWN, NOTHING)
-    if frame == NOTHING or obj.mode == "EDIT":
+    if frame == NOTHING:
         return False
     loaded = _loaded.get(mesh.session_uid)
-    held = loaded[1] if loaded is not None and loaded[0] == frame else frame_points(obj, frame)
-    if _same(mesh, held):
+    return not _same(mesh, loaded[1] if loaded is not None and loaded[0] == frame else frame_points(obj, frame))
+
+
+def keep_edits(obj) -> bool:
+    """If the clip's mesh holds edits, make its points the override of the frame it shows (a copy of
+    the mesh). Main thread, Object Mode. Returns whether it made one."""
+    mesh = obj.data
+    frame = mesh.get(SHOWN, NOTHING)
+    if obj.mode == "EDIT" or not holds_edits(obj):
         return False
     copy = mesh.copy()
     copy.name = f"{obj.name} frame {frame + 1}"
@@ -124,10 +130,8 @@ def sync(obj, scene_frame: float, on_main_thread: bool = True) -> bool:
         return False
     if on_main_thread:
         keep_edits(obj)
-    else:  # the render thread: never lose an edit that was not kept yet (cannot happen from the UI)
-        loaded = _loaded.get(mesh.session_uid)
-        if loaded is None or loaded[0] != mesh.get(SHOWN, NOTHING) or not _same(mesh, loaded[1]):
-            return False
+    elif holds_edits(obj):  # the render thread makes no datablock: never lose an edit not kept yet
+        return False  # (edits are kept as they are made, so this does not happen from the UI)
     points = frame_points(obj, frame)
     write_frame(mesh, points, frame)
     _loaded[mesh.session_uid] = (frame, points)

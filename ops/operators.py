@@ -26,14 +26,15 @@ from ..hypergs_blender.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from ..hypergs_blender.points import clip_frame_index
 from . import preferences
 from . import scene as clip_scene
-from .jobs import EncodeJob, describe
+from .jobs import EncodeJob, Source, describe
 from . import quality
-from .quality import EncodeOptions, Source
+from .quality import EncodeOptions
 
 
 class _EncodeOperator:
-    """Mixin: subclasses define make_requests(context) -> [EncodeRequest] and apply(context, results)
-    -> message; apply gets a result for every request (one job encodes them in turn, all or nothing)."""
+    """Mixin: subclasses define make_requests(context) -> ([Source], EncodeSettings) and apply(context,
+    results) -> message; apply gets a result for every source (one job encodes them in turn, all or
+    nothing)."""
 
     bl_options = {"REGISTER", "UNDO"}
 
@@ -44,11 +45,11 @@ class _EncodeOperator:
 
     def _begin(self, context):
         try:
-            requests = self.make_requests(context)
+            sources, settings = self.make_requests(context)
         except HyperGSError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        job = EncodeJob(requests, preferences.runtime(context))
+        job = EncodeJob(sources, settings, preferences.runtime(context))
         if self.use_modal and context.window is not None and not bpy.app.background:
             self._job = job.start()
             wm = context.window_manager
@@ -195,7 +196,7 @@ class HYPERGS_OT_import_video(_EncodeOperator, EncodeOptions, bpy.types.Operator
     def make_requests(self, context):
         source = self._source()
         self._path = source.path
-        return [quality.request(source, quality.settings(self))]
+        return [source], quality.settings(self)
 
     def apply(self, context, results):
         (result,) = results
@@ -272,10 +273,9 @@ class HYPERGS_OT_convert_strip(_EncodeOperator, EncodeOptions, bpy.types.Operato
     def make_requests(self, context):
         scene = _sequencer_scene(context)
         sources = [strip_source(strip) for strip in strips_to_convert(scene.sequence_editor)]
-        chosen = quality.settings(self)
         self._targets = [(source.name, source.path) for source in sources]
         self._scene = scene.name
-        return [quality.request(source, chosen) for source in sources]
+        return sources, quality.settings(self)
 
     def apply(self, context, results):
         scene = bpy.data.scenes.get(self._scene)
@@ -362,7 +362,7 @@ class HYPERGS_OT_reencode(_EncodeOperator, bpy.types.Operator):
         obj = context.object
         s = obj.hypergs
         self._name = obj.name
-        return [quality.request(reencode_source(obj), quality.settings(s))]
+        return [reencode_source(obj)], quality.settings(s)
 
     def apply(self, context, results):
         (result,) = results

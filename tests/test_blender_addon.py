@@ -73,9 +73,7 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     assert r["defaults"] == ["AUTO", 0] and "CPUExecutionProvider" in r["available"]
     # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
     assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
-    assert r["policy"] == [["CUDAExecutionProvider", "CPUExecutionProvider"], ["CPUExecutionProvider"],
-                           ["CPUExecutionProvider"], ["CoreMLExecutionProvider", "CPUExecutionProvider"],
-                           ["DmlExecutionProvider", "CPUExecutionProvider"]]
+    # (The policy itself, providers_for, is tested without Blender: test_runtime.py.)
     assert r["preferences_drawn"]
 
 
@@ -207,13 +205,13 @@ def run_session(zip_path, work, out_path):
                     torch_importable=_importable("torch"))
 
     addon = ctx["addon"]
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.io.images import resize_exact
     from hypergs_blender.metrics import psnr
     from hypergs_blender.points import points_to_params
     from hypergs_blender.render import render_frames, render_params
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = _import(addon, "hypergs_blender.runtime").make_encoder()
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = 24, 1.0
 
@@ -252,7 +250,7 @@ def run_session(zip_path, work, out_path):
 
     @record("bundled_encoder")
     def _():
-        encoder_module = _import(addon, "ops.encoder")
+        encoder_module = _import(addon, "hypergs_blender.runtime")
         weights = Path(addon.__file__).parent / "hypergs_blender" / "weights"
         has_onnx = any(weights.glob("*.onnx"))
         saved = os.environ.get("HYPERGS_ENCODER")
@@ -277,7 +275,7 @@ def run_session(zip_path, work, out_path):
 
     @record("providers")
     def _():
-        encoder_module, prefs_module = _import(addon, "ops.encoder"), _import(addon, "ops.preferences")
+        encoder_module, prefs_module = _import(addon, "hypergs_blender.runtime"), _import(addon, "ops.preferences")
         prefs = bpy.context.preferences.addons[prefs_module.ADDON].preferences
         defaults = [prefs.device, prefs.threads]
         prefs.device, prefs.threads = "CUDAExecutionProvider", 1
@@ -292,14 +290,10 @@ def run_session(zip_path, work, out_path):
             os.environ["HYPERGS_ENCODER"] = saved or ""
             prefs.device, prefs.threads = defaults
             encoder_module._cache.clear()
-        cuda, dml, coreml, cpu = encoder_module.PROVIDERS
-        policy = [encoder_module.providers_for("AUTO", [cuda, cpu]), encoder_module.providers_for(dml, [cuda, cpu]),
-                  encoder_module.providers_for(cpu, [coreml, cpu]), encoder_module.providers_for("AUTO", [coreml, cpu]),
-                  encoder_module.providers_for(dml, [cuda, dml, cpu])]
         layout = Recorder()
         type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
         return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
-                    policy=policy, preferences_drawn=[list(c) for c in layout.calls])
+                    preferences_drawn=[list(c) for c in layout.calls])
 
     @record("import_dialog")
     def _():
@@ -337,7 +331,8 @@ def run_session(zip_path, work, out_path):
             plan.chunks = original
         after = snapshot(bpy)
         jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, None)]).start()
+        chosen = _import(addon, "hypergs_blender.encode").EncodeSettings(gaussians=500)
+        threaded = jobs.EncodeJob([jobs.Source(CLIP_NAME, str(CLIP))], chosen).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
@@ -359,7 +354,7 @@ def run_session(zip_path, work, out_path):
         bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    reference = encode_video(str(CLIP), encoder, REQUESTED)  # what Quality: Custom asks for
+    reference = encode_video(str(CLIP), encoder, EncodeSettings(gaussians=REQUESTED))  # what Quality: Custom asks for
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("clip")

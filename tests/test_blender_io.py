@@ -194,7 +194,7 @@ def run_session(zip_path, work, out_path):
     addon = job.install_extension(bpy, zip_path)
     linked = _import(addon, "com.linked")
     from hypergs_blender.io.codec import Quantizer
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.gaussians import GaussianVideo
     from hypergs_blender.io.hgs import load_hgs
     from hypergs_blender.io.npz import save_npz
@@ -515,7 +515,7 @@ def run_session(zip_path, work, out_path):
     for o in list(bpy.data.objects):
         if o.type == "MESH":
             bpy.data.meshes.remove(o.data)
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = _import(addon, "hypergs_blender.runtime").make_encoder()
     folder = work / "seq"
     folder.mkdir()
     yy, xx = np.mgrid[0:48, 0:64] / np.float32(48)
@@ -524,7 +524,7 @@ def run_session(zip_path, work, out_path):
         rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
         write_image(folder / f"frame_{i + 1:04d}.png", rgb)
     (folder / "notes.txt").write_text("not a frame")
-    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250)
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, EncodeSettings(gaussians=250))
 
     def compare(obj, first):
         p, _ = mesh_params(obj)

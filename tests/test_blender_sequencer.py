@@ -131,11 +131,11 @@ def run_session(zip_path, work, out_path):
     bpy = job.start_blender(work / "user")
     addon = job.install_extension(bpy, zip_path)
     compat = _import(addon, "com.compat")
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.metrics import psnr
     from hypergs_blender.render import render_frames
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = _import(addon, "hypergs_blender.runtime").make_encoder()
 
     scene = bpy.context.scene
     for o in list(bpy.data.objects):  # a Video Editing file: strips only
@@ -264,7 +264,7 @@ def run_session(zip_path, work, out_path):
 
     sources = sorted({source for _, source in ROUND_TRIP.values()} | {source + 3 for _, source in ROUND_TRIP.values()})
     truth = {i: f / np.float32(255) for i, f in iter_frames(str(job.SAMPLE), sources)}
-    references = {name: encode_video(str(job.SAMPLE), encoder, cell=QUALITY["draft"]["cell"], start=spec["source"],
+    references = {name: encode_video(str(job.SAMPLE), encoder, EncodeSettings.choose("draft"), start=spec["source"],
                                      stop=spec["source"] + spec["end"] - spec["first"])
                   for name, spec in STRIPS.items() if name != "c"}
 

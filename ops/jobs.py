@@ -8,7 +8,6 @@ import time
 from dataclasses import dataclass
 
 from ..hypergs_blender.encode import EncodePlan, EncodeSettings
-from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
 
@@ -99,10 +98,3 @@ class EncodeJob:
         if len(self.sources) > 1:
             text += f" of clip {self.index + 1} of {len(self.sources)}"
         return text
-
-
-def describe(error: BaseException) -> str:
-    """The message the user sees for an error (no traceback)."""
-    if isinstance(error, HyperGSError):
-        return str(error)
-    return f"{type(error).__name__}: {error}"

@@ -41,6 +41,7 @@ def test_the_environment_picks_the_floor_and_refuses_other_names(monkeypatch, se
         make_encoder()
 
 
+@pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider' is not in available provider names")
 def test_the_bundled_network_runs_where_asked_and_is_loaded_once(monkeypatch, session_cache):
     monkeypatch.setattr(optional, "torch_available", lambda: False)  # as in Blender's Python: onnxruntime
     monkeypatch.delenv("HYPERGS_ENCODER", raising=False)

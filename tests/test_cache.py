@@ -12,7 +12,7 @@ from hypergs_blender.errors import HyperGSError
 from hypergs_blender.io import cache
 from hypergs_blender.io.cache import FrameCache, _FileOnDemand
 from hypergs_blender.io.hgs import HgsError, HgsReader, load_hgs
-from test_codec import moving_params
+from conftest import moving_params
 
 
 def write_cache(path, frames: int, n: int = 40, seed: int = 0):

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import moving_params, random_params
 from hypergs_blender.io.codec import (ANCHOR, INTRA, MODES, PREVIOUS, CodecError, Quantizer, decode_group,
                                    encode_group, order_stability, to_domain)
 from hypergs_blender.errors import HyperGSError, LimitError
@@ -18,23 +19,6 @@ from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import HgsError, HgsReader, HgsWriter, load_hgs, save_hgs
 
 VIDEO = Path(__file__).resolve().parents[1] / "hypergs_blender" / "samples" / "sample.mp4"  # the bundled sample
-
-
-def random_params(rng, t, n, canvas=64):
-    p = np.empty((t, n, 8), np.float32)
-    p[..., 0:2] = rng.uniform(-1, 1, (t, n, 2))
-    p[..., 2:4] = np.exp(rng.uniform(math.log(0.3), math.log(canvas / 4), (t, n, 2)))
-    p[..., 4] = rng.uniform(0, 2 * np.pi, (t, n))
-    p[..., 5:8] = rng.uniform(-0.5, 1.5, (t, n, 3))
-    return p
-
-
-def moving_params(rng, t, n, canvas=64):
-    """Gaussians that drift slowly, like a real clip (residuals are small)."""
-    p = np.repeat(random_params(rng, 1, n, canvas), t, axis=0)
-    p[..., 0:2] += np.cumsum(rng.normal(0, 0.005, (t, n, 2)), axis=0)
-    p[..., 5:8] += np.cumsum(rng.normal(0, 0.01, (t, n, 3)), axis=0)
-    return p
 
 
 def domain_error(a, b):
@@ -207,8 +191,8 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
 
 
 def test_hgs_round_trip_of_floor_encoder_gaussians(tmp_path):
-    from hypergs_blender.encode import FloorEncoder, encode_video
-    video = encode_video(VIDEO, FloorEncoder(), gaussians=256, size=64, num_frames=6)
+    from hypergs_blender.encode import EncodeSettings, FloorEncoder, encode_video
+    video = encode_video(VIDEO, FloorEncoder(), EncodeSettings(gaussians=256), size=64, num_frames=6)
     sizes = {}
     for bits in (8, 4):
         sizes[bits] = save_hgs(video, tmp_path / f"c{bits}.hgs", bits=bits)

@@ -31,6 +31,7 @@ from .render import render_params
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
 
+BATCH_PIXELS = 1 << 20  # working pixels per forward pass and per float32 batch (bounds memory: one 720p frame)
 MAX_CELL = 32.0  # source pixels per cell side; coarser would shrink frames more than 8x (untrained)
 QUALITY = {  # cell size in source pixels and refine steps of each quality preset
     "draft": dict(cell=8.0, refine=0),
@@ -143,40 +144,48 @@ class EncodeSettings:
 @dataclass(frozen=True)
 class EncodeCost:
     """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
-    (Blender's dialogs). Measured on the 2-core development machine (one thread: 1280x720, cells of
-    6 px, the conv network ~0.85 s per frame; refine at cells of 4 px ~0.4 s per step); recalibrate when
-    an encoder changes."""
-    predict_s_per_gaussian: float  # the encoder's forward pass
-    hgs_bytes_per_gaussian: float  # a .hgs file at 8 bits
-    decode_s_per_pixel: float = 9e-8  # decoding the source frame (PyAV)
+    (Blender's dialogs). Measured on the 2-core development machine as CPU seconds (wall seconds there
+    were up to 2x more: two trainings ran beside), 1920 x 1080 at Standard (57,600 Gaussians): the
+    network (onnxruntime) 0.79 s per frame on one thread, 0.93 CPU s on two; decoding 0.04 s; writing
+    the frame cache 0.025 s; the floor 0.043 s. Recalibrate when an encoder changes
+    (`tools/long_clips.py` prints the estimate beside the measured conversion)."""
+    predict_s_per_gaussian: float  # the encoder's forward pass (with the resize to its working size), one thread
+    cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
+    threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
+    decode_s_per_pixel: float = 2e-8  # decoding the source frame (PyAV)
+    write_s_per_gaussian: float = 4.4e-7  # writing the frame cache
     refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
     refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
-    blend_bytes_per_gaussian: float = 44.0  # embedded in a .blend: float32 position, scale, rotation, RGBA, frame
+    blend_bytes_per_gaussian: float = 40.0  # the frame a clip's mesh holds: float32 position, scale, rotation, RGBA
 
 
 ENCODE_COSTS = {  # by encoder: "floor", or "network" (both backends)
-    "floor": EncodeCost(predict_s_per_gaussian=2e-5, hgs_bytes_per_gaussian=2.2),
-    "network": EncodeCost(predict_s_per_gaussian=3.5e-5, hgs_bytes_per_gaussian=3.8),
+    "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
+    "network": EncodeCost(predict_s_per_gaussian=1.38e-5, cache_bytes_per_gaussian=12.4),
 }
+THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (0.93 CPU s on 2 vs 0.79 on 1)
 
 
 @dataclass(frozen=True)
 class Estimate:
     seconds: float
-    blend_bytes: float  # the clip embedded in a .blend
-    hgs_bytes: float  # the clip as a .hgs file (8 bits)
+    threads: int  # the CPU threads the time assumes
+    cache_bytes: float  # the clip's frame cache (beside the .blend)
+    blend_bytes: float  # what the clip adds to the .blend (the frame its mesh holds)
 
 
-def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network") -> Estimate:
+def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
-    name: "floor", "network-onnx", ...): time and size, from ENCODE_COSTS."""
+    name: "floor", "network-onnx", ...) on `threads` CPU threads: time and size, from ENCODE_COSTS."""
     cost = ENCODE_COSTS["floor" if encoder == "floor" else "network"]
-    n = layout.count
-    per_frame = cost.decode_s_per_pixel * layout.width * layout.height + cost.predict_s_per_gaussian * n
+    n, threads = layout.count, max(1, int(threads))
+    speedup = 1 + THREAD_GAIN * (threads - 1) if cost.threaded else 1.0
+    per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
+                 + cost.predict_s_per_gaussian * n / speedup)
     if refine > 0:
         per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
-    return Estimate(per_frame * frames, cost.blend_bytes_per_gaussian * n * frames,
-                    cost.hgs_bytes_per_gaussian * n * frames)
+    return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
+                    cost.blend_bytes_per_gaussian * n)
 
 
 class FloorEncoder:
@@ -190,6 +199,9 @@ class FloorEncoder:
 
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         return [], []  # one pass over the whole frame
+
+    def release(self) -> None:
+        """Nothing to give back (the network's encoders free their runtime's memory here)."""
 
     def predict(self, frames: np.ndarray) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]."""
@@ -207,9 +219,17 @@ class FloorEncoder:
 
 def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
-    steps against the frames (refine.refine_params, needs torch) when asked."""
-    work = np.stack([resize_exact(f, layout.work_width, layout.work_height) for f in frames])
-    params = encoder.predict(work.astype(np.float32) / 255)
+    steps against the frames (refine.refine_params, needs torch) when asked. Frames go to the encoder
+    as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame): memory
+    does not grow with T (16 working frames of 1080p at Standard were 700 MB as float32), and the
+    network's own passes are no larger."""
+    per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height))
+    params = np.empty((len(frames), layout.count, 8), np.float32)
+    for start in range(0, len(frames), per_pass):
+        work = np.stack([resize_exact(f, layout.work_width, layout.work_height)
+                         for f in frames[start:start + per_pass]]).astype(np.float32)
+        work /= 255
+        params[start:start + len(work)] = encoder.predict(work)
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     if (tx, ty) != (1, 1):
         params = stretch_params(params, tx, ty)

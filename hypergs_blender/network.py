@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from . import optional
+from .encode import BATCH_PIXELS, FloorEncoder
 from .errors import HyperGSError
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 BUNDLED_NAME = "hypergs"
 BACKENDS = ("auto", "torch", "onnx")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
-BATCH_PIXELS = 1 << 20  # working pixels per forward pass (bounds memory: one 720p working frame)
 
 
 def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[int, int, int, int]]:
@@ -164,7 +164,6 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
     onnx_encoder). What cannot load raises HyperGSError saying why; nothing falls back to another kind
     of encoder."""
     if kind == "floor":
-        from .encode import FloorEncoder
         return FloorEncoder()
     if kind != "network":
         raise HyperGSError(f"unknown encoder {kind!r} (network or floor)")

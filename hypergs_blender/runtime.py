@@ -33,6 +33,11 @@ class Runtime:
     device: str = AUTO
     threads: int = 0
 
+    @property
+    def cpu_threads(self) -> int:
+        """The CPU threads the network runs on (for the time estimate)."""
+        return self.threads or os.cpu_count() or 1
+
 
 def available_providers() -> list[str]:
     """The PROVIDERS the installed onnxruntime has, best first (none without onnxruntime)."""

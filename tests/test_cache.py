@@ -122,3 +122,123 @@ def test_threads_share_the_cache(tmp_path):
     for thread in threads:
         thread.join()
     assert wrong == []
+
+
+def clip(frames=9, n=30, seed=3):
+    from hypergs_blender.gaussians import GaussianVideo
+    return GaussianVideo(moving_params(np.random.default_rng(seed), frames, n), 64, 48, 29.97, (6, 5),
+                         {"path": "x.mp4", "frames": list(range(frames))})
+
+
+def test_a_clip_read_a_frame_at_a_time_is_copied_into_a_cache(tmp_path):
+    from hypergs_blender.io.clips import ClipFrames
+    video = clip()
+    header = cache.write_clip(ClipFrames.of(video), tmp_path / "c.hgs")
+    back = load_hgs(tmp_path / "c.hgs")
+    assert (header.num_frames, header.num_gaussians, back.grid, back.source) == (9, 30, (6, 5), video.source)
+    assert np.array_equal(back.params[..., :2], video.params[..., :2])  # means kept exactly
+    np.testing.assert_allclose(back.params[..., 5:], video.params[..., 5:], rtol=2 ** -10, atol=1e-6)
+    with HgsReader(tmp_path / "c.hgs") as reader:  # and a cache's frames copied again, as they are read
+        cache.write_clip(ClipFrames.of(reader), tmp_path / "d.hgs")
+    assert np.array_equal(load_hgs(tmp_path / "d.hgs").params, back.params)
+
+
+def test_a_cancelled_or_failed_copy_leaves_no_file(tmp_path):
+    from hypergs_blender.errors import Cancelled
+    from hypergs_blender.io.clips import ClipFrames
+    video = clip()
+    with pytest.raises(Cancelled):
+        cache.write_clip(ClipFrames.of(video), tmp_path / "c.hgs", progress=lambda done, total: done < 4)
+    video.params[6, 3, 2] = np.nan  # a frame no reader would accept, found while copying
+    with pytest.raises(HyperGSError, match=r"frame 6: .*NaN"):
+        cache.write_clip(ClipFrames.of(video), tmp_path / "c.hgs")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".hgs", ".usd", ".npz"])
+def test_save_clip_streams_a_clip_read_a_frame_at_a_time(tmp_path, suffix):
+    """save_clip of ClipFrames writes what save_clip of the whole clip writes; .hgs and USD read the
+    frames as they write (.hgs twice: its ranges are fitted first)."""
+    from hypergs_blender.io.clips import ClipFrames, load_clip, save_clip
+    video = clip()
+    passes = []
+    frames = ClipFrames.of(video)
+    counted = ClipFrames(lambda: passes.append(1) or frames.frames(), *[getattr(frames, f) for f in
+                         ("num_frames", "num_gaussians", "canvas_width", "canvas_height", "fps", "grid", "source")])
+    save_clip(video, tmp_path / f"whole{suffix}")
+    save_clip(counted, tmp_path / f"streamed{suffix}")
+    assert len(passes) == (2 if suffix == ".hgs" else 1)
+    if suffix == ".hgs":
+        assert (tmp_path / f"whole{suffix}").read_bytes() == (tmp_path / f"streamed{suffix}").read_bytes()
+    else:
+        a, b = load_clip(tmp_path / f"whole{suffix}"), load_clip(tmp_path / f"streamed{suffix}")
+        assert np.array_equal(a.params, b.params) and a.source == b.source and a.fps == b.fps
+
+
+def test_save_clip_refuses_frames_that_do_not_fit_and_leaves_no_file(tmp_path):
+    from hypergs_blender.io.clips import ClipFrames, save_clip
+    video = clip()
+    short = ClipFrames(lambda: iter(video.params[:5]), 9, 30, 64, 48)
+    with pytest.raises(HyperGSError, match="5 frames read, expected 9"):
+        save_clip(short, tmp_path / "c.usd")
+    wrong = ClipFrames(lambda: iter(video.params[:, :20]), 9, 30, 64, 48)
+    with pytest.raises(HyperGSError, match=r"frame 0 holds \(20, 8\) parameters, expected \(30, 8\)"):
+        save_clip(wrong, tmp_path / "c.hgs")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_folders_made_for_a_file_are_removed_again_only_when_empty(tmp_path):
+    from hypergs_blender.io.files import make_folders, remove_folders
+    made = make_folders(tmp_path / "a" / "b" / "c")
+    assert made == [tmp_path / "a", tmp_path / "a" / "b", tmp_path / "a" / "b" / "c"]
+    assert make_folders(tmp_path / "a" / "b") == []  # there already
+    (tmp_path / "a" / "keep.txt").write_text("someone else's")
+    remove_folders(made)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["keep.txt"]
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(HyperGSError, match="cannot make the folder"):
+        make_folders(tmp_path / "file" / "sub")
+
+
+def _in_a_small_file_system(tmp_path, script: str, size_kb: int = 64):
+    """Run `script` (bash) where $FS is an empty tmpfs of `size_kb` kB (a user and mount namespace:
+    unshare); skips where this system does not allow one. Returns the CompletedProcess."""
+    import shutil
+    import subprocess
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare")
+    fs = tmp_path / "fs"
+    fs.mkdir()
+    probe = subprocess.run(["unshare", "-Urm", "sh", "-c", f"mount -t tmpfs -o size={size_kb}k tmpfs {fs}"],
+                           capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip(f"no user mount namespace here: {probe.stderr.decode().strip()}")
+    return subprocess.run(["unshare", "-Urm", "bash", "-c",
+                           f"mount -t tmpfs -o size={size_kb}k tmpfs {fs} && export FS={fs} && {script}"],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_a_full_disk_is_a_one_line_error_and_leaves_no_file(tmp_path):
+    """On a real full file system (a 64 kB tmpfs): `hypergs encode` to a .hgs file and a frame cache
+    written from Python fail with one line naming the file and the reason, and leave the file system
+    empty."""
+    import sys
+    from conftest import make_pan_clip
+    video = make_pan_clip(tmp_path / "pan.mp4", frames=24)
+    python = sys.executable
+    copy = ("from hypergs_blender.gaussians import GaussianVideo; from hypergs_blender.io import cache; "
+            "from hypergs_blender.io.clips import ClipFrames; import numpy as np, os; "
+            "p = np.random.default_rng(0).uniform(0.5, 1, (40, 2000, 8)).astype(np.float32); "
+            "cache.write_clip(ClipFrames.of(GaussianVideo(p, 64, 48)), os.environ['FS'] + '/c.hgs')")
+    proc = _in_a_small_file_system(tmp_path, f"""
+        {python} -m hypergs_blender encode {video} -o $FS/clip.hgs --encoder floor --quality draft 2>&1 \
+            | sed 's/^/cli: /'; echo "rc=${{PIPESTATUS[0]}}"
+        echo "left: $(ls -A $FS)"
+        {python} -c "{copy}"; echo "rc=$?"
+        echo "left: $(ls -A $FS)"
+    """)
+    lines = proc.stdout.splitlines()
+    assert [line for line in lines if line.startswith(("rc=", "left:"))] == ["rc=1", "left: ", "rc=1", "left: "], proc
+    cli = [line for line in lines if line.startswith("cli: ") and line.strip() != "cli:"]
+    assert len(cli) == 1 and "clip.hgs: cannot write (No space left on device)" in cli[0], cli  # one line
+    assert proc.stderr.strip().splitlines()[-1].endswith("c.hgs: cannot write (No space left on device)"), proc.stderr

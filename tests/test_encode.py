@@ -117,19 +117,27 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob("clip.hgs*"))
 
 
-def test_estimate_scales_with_gaussians_frames_and_refine_steps():
-    from hypergs_blender.encode import ENCODE_COSTS, estimate, plan_layout
+def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
+    from hypergs_blender.encode import ENCODE_COSTS, THREAD_GAIN, estimate, plan_layout
     small, large = plan_layout(432, 240, 4, cell=8.0), plan_layout(864, 480, 4, cell=8.0)
     assert large.count == 4 * small.count
     a, b = estimate(small, 10), estimate(large, 10)
-    assert b.seconds == pytest.approx(4 * a.seconds) and b.blend_bytes == 4 * a.blend_bytes
-    assert estimate(small, 20).hgs_bytes == 2 * a.hgs_bytes
+    assert b.seconds == pytest.approx(4 * a.seconds) and b.cache_bytes == 4 * a.cache_bytes
+    assert estimate(small, 20).cache_bytes == 2 * a.cache_bytes and estimate(small, 20).seconds == pytest.approx(2 * a.seconds)
     cost = ENCODE_COSTS["network"]
-    assert a.blend_bytes == small.count * 10 * cost.blend_bytes_per_gaussian
+    # The .blend holds one frame whatever the clip's length; the cache grows with it.
+    assert a.blend_bytes == estimate(small, 1000).blend_bytes == small.count * cost.blend_bytes_per_gaussian
+    assert a.cache_bytes == small.count * 10 * cost.cache_bytes_per_gaussian
     refined = estimate(small, 10, refine=30)
     step = cost.refine_first_s_per_gaussian + 29 * cost.refine_s_per_gaussian_step
     assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step)
     assert estimate(small, 10, encoder="floor").seconds < a.seconds  # the network costs more
+    # More threads speed up the network's pass only, by THREAD_GAIN per thread; the estimate says what it assumed.
+    two = estimate(small, 10, threads=2)
+    predict = cost.predict_s_per_gaussian * small.count * 10
+    assert two.threads == 2 and a.threads == 1
+    assert a.seconds - two.seconds == pytest.approx(predict - predict / (1 + THREAD_GAIN))
+    assert estimate(small, 10, encoder="floor", threads=2).seconds == estimate(small, 10, encoder="floor").seconds
 
 
 def test_settings_read_a_preset_a_count_or_a_cell():

@@ -27,8 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import HyperGSError
-from .hgs import HgsError, HgsReader, HgsWriter
+from ..errors import Cancelled, HyperGSError
+from .clips import ClipFrames
+from .hgs import HgsError, HgsHeader, HgsReader, HgsWriter
 
 MAX_OPEN = 8  # files kept open (header and index); the least recently used is dropped first
 MAX_FRAME_BYTES = 64 << 20  # decoded frames kept for scrubbing (~35 frames of 57,600 Gaussians)
@@ -39,6 +40,19 @@ def writer(path, canvas_width: int, canvas_height: int, num_gaussians: int, fps:
     """A streaming writer of a frame cache at `path` (use as a context manager, or close / abort)."""
     return HgsWriter(path, canvas_width, canvas_height, num_gaussians, fps=fps, grid=grid, source=source,
                      group_size=1, codec="float16")
+
+
+def write_clip(clip: ClipFrames, path, progress=None) -> HgsHeader:
+    """Copy a clip (clips.ClipFrames: e.g. an exported .hgs file's frames, or a clip in memory) into a new
+    frame cache at `path`, a frame at a time; returns the cache's header. progress(done, total) ->
+    False cancels (raises Cancelled). Like every write here, a failure leaves no file."""
+    with writer(path, clip.canvas_width, clip.canvas_height, clip.num_gaussians, clip.fps, clip.grid,
+                clip.source) as out:
+        for done, params in enumerate(clip.checked_frames(path)):
+            if progress is not None and progress(done, clip.num_frames) is False:
+                raise Cancelled("copying the clip into its cache cancelled")
+            out.write(params)
+    return out.header
 
 
 def _stat_key(path: str) -> tuple:

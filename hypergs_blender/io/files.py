@@ -174,6 +174,37 @@ def discard_pending() -> None:
         _pending.discard(temp)
 
 
+def make_folders(folder) -> list[Path]:
+    """Make `folder` and the folders above it that are missing; returns those made, outermost first
+    (for remove_folders). Raises HyperGSError naming the folder that cannot be made."""
+    folder = _path(folder)
+    missing = []
+    while not folder.is_dir() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    made = []
+    for path in reversed(missing):
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue  # made meanwhile (by another writer): not ours
+        except OSError as e:
+            remove_folders(made)
+            raise HyperGSError(f"{path}: cannot make the folder ({e.strerror})") from None
+        made.append(path)
+    return made
+
+
+def remove_folders(folders) -> None:
+    """Remove folders made by make_folders, innermost first, where they are empty (another file may have
+    gone there meanwhile: then it and the folders above it stay)."""
+    for path in reversed(list(folders)):
+        try:
+            path.rmdir()
+        except OSError:
+            return
+
+
 def write_bytes(path, data: bytes, inputs=()) -> None:
     """Write a small file whole, atomically."""
     with AtomicOutput(path, inputs) as temp:

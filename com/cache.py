@@ -57,26 +57,28 @@ def is_temporary(path: str) -> bool:
     return os.path.normcase(os.path.abspath(path)).startswith(os.path.normcase(temp_folder()) + os.sep)
 
 
-def new_cache_path(name: str) -> str:
-    """A path for a new cache of the clip `name` in cache_folder(), not taken by any file (made
-    now). Every conversion gets its own file, so undoing one still finds the cache it replaced."""
-    folder = cache_folder()
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        raise HyperGSError(f"{folder}: cannot make the folder for the clip's cache ({e.strerror})") from None
-    stem = bpy.path.clean_name(name) or "clip"
+def new_cache_path(name: str, taken=()) -> str:
+    """A path for a new cache of the clip `name` in cache_folder(), naming no file and none of `taken`
+    (the folder is made by whoever writes it: jobs.EncodeJob). Every conversion gets its own file, so
+    undoing one still finds the cache it replaced."""
+    return _free_path(cache_folder(), bpy.path.clean_name(name) or "clip", taken)
+
+
+def _free_path(folder: str, stem: str, taken=()) -> str:
+    taken = {os.path.normcase(p) for p in taken}
     for i in range(10000):
         path = os.path.join(folder, f"{stem}{'.%03d' % i if i else ''}{SUFFIX}")
-        if not os.path.exists(path):
+        if not os.path.exists(path) and os.path.normcase(path) not in taken:
             return path
-    raise HyperGSError(f"{folder}: no free name for the cache of '{name}'")
+    raise HyperGSError(f"{folder}: no free name for the cache of '{stem}'")
 
 
 def cache_image(path: str, name: str):
-    """A new Image datablock holding the cache file at `path` (not decoded)."""
+    """A new Image datablock holding the cache file at `path` (not decoded), its path stored relative
+    to the saved .blend where the preferences ask for it (paths.stored_path)."""
     image = bpy.data.images.load(path, check_existing=False)
     image.name = f".{name}{SUFFIX}"
+    image.filepath = stored_path(path)
     return image
 
 
@@ -93,23 +95,48 @@ def clip_file(obj) -> str:
     key = (image.session_uid, packed.size)
     path = _extracted.get(key)
     if path is None or not os.path.isfile(path):
-        path = os.path.join(temp_folder(), "packed", f"{image.session_uid}_{packed.size}{SUFFIX}")
+        path = _extract(key, lambda target: write_bytes(target, packed.data))
+    return path
+
+
+def _extract(key, write) -> str:
+    """The temporary file holding the packed cache `key` ((image session uid, packed size)), written by
+    write(path)."""
+    path = os.path.join(temp_folder(), "packed", f"{key[0]}_{key[1]}{SUFFIX}")
+    try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        write_bytes(path, packed.data)
-        _extracted[key] = path
+    except OSError as e:
+        raise HyperGSError(f"{os.path.dirname(path)}: cannot make the folder for a packed cache "
+                           f"({e.strerror})") from None
+    write(path)
+    _extracted[key] = path
     return path
 
 
 def pack(obj) -> None:
-    """Keep the clip's cache inside the .blend (Blender's PackedFile)."""
+    """Keep the clip's cache inside the .blend (Blender's PackedFile). The file it was read from
+    becomes the session's copy of the packed bytes (a hard link where it can be: caches are never
+    changed in place), so reading goes on without writing them out again."""
     image = obj.hypergs.cache
     if image is None:
-        raise HyperGSError(f"'{obj.name}' has no cache to pack")
-    if image.packed_file is None:
-        path = clip_file(obj)
-        if not os.path.isfile(path):
-            raise HyperGSError(f"{path}: no such file: nothing to pack")
-        image.pack()
+        raise HyperGSError(f"'{obj.name}' has no frame cache to pack")
+    if image.packed_file is not None:
+        return
+    path = clip_file(obj)
+    if not os.path.isfile(path):
+        raise HyperGSError(f"{path}: no such file: nothing to pack")
+    image.pack()
+
+    def link(target):
+        try:
+            os.link(path, target)
+        except OSError:
+            with AtomicOutput(target) as temp:
+                shutil.copyfile(path, temp)
+    try:
+        _extract((image.session_uid, image.packed_file.size), link)
+    except HyperGSError:
+        pass  # clip_file writes the packed bytes out when the clip next reads a frame
 
 
 def unpack(obj) -> str:
@@ -127,8 +154,9 @@ def unpack(obj) -> str:
         raise HyperGSError(f"{path}: cannot make its folder ({e.strerror})") from None
     with AtomicOutput(path) as temp:
         temp.write_bytes(image.packed_file.data)
-    image.filepath = stored_path(path)
-    image.unpack(method="USE_ORIGINAL")  # the file is there now: drop the packed copy, keep the path
+    image.filepath = path
+    image.unpack(method="USE_ORIGINAL")  # the file is there now: drop the packed copy
+    image.filepath = stored_path(path)  # (unpack stores the path it used, absolute)
     FRAMES.forget(path)
     return path
 
@@ -140,14 +168,15 @@ def _clip_images():
             yield s.cache
 
 
-_moved: list = []  # (image, its path before, its path after) for the save running now
+_moved: list = []  # (image, its path before) for the save running now
 
 
 @persistent
 def _save_pre(filepath, *args):
-    """Caches still in the temporary folder go beside the .blend being saved (copied; the temporary
-    file goes once the save succeeded). A copy that fails leaves the cache where it was: the save
-    goes on, and the clip still reads it this session."""
+    """Caches still in the temporary folder go beside the .blend being saved, as Blender does with
+    bakes (a hard link where the folders share a file system, else a copy; the temporary file goes once
+    the save succeeded: undo does not take an Image datablock's path back). A copy that fails leaves
+    the cache where it was: the save goes on, and the clip still reads it this session."""
     _moved.clear()
     if not filepath:
         return
@@ -158,27 +187,28 @@ def _save_pre(filepath, *args):
         old = bpy.path.abspath(image.filepath)
         if not is_temporary(old) or not os.path.isfile(old):
             continue
-        new = os.path.join(folder, os.path.basename(old))
         try:
             os.makedirs(folder, exist_ok=True)
-            if os.path.exists(new):
-                raise HyperGSError(f"{new} exists")
-            with AtomicOutput(new) as temp:
-                shutil.copyfile(old, temp)
+            new = _free_path(folder, os.path.splitext(os.path.basename(old))[0])
+            try:
+                os.link(old, new)
+            except OSError:  # another file system (or none that links)
+                with AtomicOutput(new) as temp:
+                    shutil.copyfile(old, temp)
         except (OSError, HyperGSError) as e:
             print(f"HyperGS: the cache {old} stays in the temporary folder: {e}")
             continue
-        _moved.append((image, old, new))
-        image.filepath = new  # Blender stores it relative (//...) when the preferences ask for it
+        _moved.append((image, old))
+        image.filepath = new  # the first save stores it relative (//...), as every path in the file
 
 
 @persistent
 def _save_post(filepath, *args):
     if os.path.normcase(os.path.abspath(bpy.data.filepath)) != os.path.normcase(os.path.abspath(filepath)):
-        for image, old, _ in _moved:  # Save Copy: the copy has its caches beside it; this session keeps its own
+        for image, old in _moved:  # Save Copy: the copy has its caches beside it; this session keeps its own
             image.filepath = old
     else:
-        for _, old, new in _moved:
+        for _, old in _moved:
             FRAMES.forget(old)
             try:
                 os.remove(old)
@@ -189,7 +219,8 @@ def _save_post(filepath, *args):
 
 @persistent
 def _save_post_fail(filepath, *args):
-    for image, old, new in _moved:
+    for image, old in _moved:
+        new = bpy.path.abspath(image.filepath)
         image.filepath = old
         try:
             os.remove(new)

@@ -36,7 +36,9 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.points import clip_frame_index, params_to_points
+from ..hypergs_blender.io.clips import ClipFrames
+from ..hypergs_blender.points import (FRAME_COUNTS, clip_frame_index, padding, params_to_points, points_to_params,
+                                      source_frame_counts)
 from . import add_handlers, cache, remove_handlers
 from .mesh import NOTHING, SHOWN, read_points, write_frame
 
@@ -56,12 +58,32 @@ def wanted_frame(obj, scene_frame: float) -> int:
     return frame if 0 <= frame < s.num_frames else NOTHING
 
 
+def cache_problem(obj) -> str | None:
+    """What is wrong with a cache clip's frame cache now (missing, damaged, a packed one that cannot be
+    written out), or None."""
+    try:
+        return cache.FRAMES.problem(cache.clip_file(obj))
+    except HyperGSError as e:
+        return str(e)
+
+
 def override(obj, frame: int):
     """The mesh holding frame `frame`'s edits, or None."""
     for item in obj.hypergs.overrides:
         if item.frame == frame and item.mesh is not None:
             return item.mesh
     return None
+
+
+def _cache_params(obj, frame: int) -> np.ndarray:
+    """float32 [M, 8] parameters of a frame in the clip's cache, without the padding of a clip whose
+    frames hold fewer Gaussians than N (points.points_to_video: a clip embedded whole, copied in)."""
+    path = cache.clip_file(obj)
+    params = cache.FRAMES.read_frame(path, frame)
+    source = cache.FRAMES.reader(path).source
+    if FRAME_COUNTS in source:
+        params = params[:source_frame_counts(source, obj.hypergs.num_frames, len(params))[frame]]
+    return params
 
 
 def frame_points(obj, frame: int) -> dict:
@@ -72,15 +94,65 @@ def frame_points(obj, frame: int) -> dict:
         return params_to_points(np.zeros((0, 8), np.float32), 1, 1)
     mesh = override(obj, frame)
     if mesh is not None:
-        points = read_points(mesh)
-        if points is None:
-            raise HyperGSError(f"'{mesh.name}' (frame {frame + 1} of '{obj.name}') lacks the clip's point attributes")
+        points = _override_points(obj, mesh, frame)
         color = np.ones((len(points["color"]), 4), np.float32)
         color[:, :3] = points["color"]
         return dict(points, color=color)
     s = obj.hypergs
-    params = cache.FRAMES.read_frame(cache.clip_file(obj), frame)
-    return params_to_points(params, s.canvas_width, s.canvas_height)
+    return params_to_points(_cache_params(obj, frame), s.canvas_width, s.canvas_height)
+
+
+def _override_points(obj, mesh, frame: int) -> dict:
+    points = read_points(mesh)
+    if points is None:
+        raise HyperGSError(f"'{mesh.name}' (frame {frame + 1} of '{obj.name}') lacks the clip's point attributes")
+    return points
+
+
+def _valid_params(points: dict, s) -> np.ndarray:
+    """Canvas parameters of points (a mesh's), without those that cannot be a Gaussian (a zero scale,
+    values that are not finite), as points.points_to_video leaves them out."""
+    params = points_to_params(points["position"], np.abs(points["scale"]), points["rotation"], points["color"],
+                              s.canvas_width, s.canvas_height)
+    return params[np.all(np.isfinite(params), axis=1) & np.all(params[:, 2:4] > 0, axis=1)]
+
+
+def clip_frames(obj, shown: dict | None = None) -> tuple[ClipFrames, int]:
+    """(every frame of a cache clip as edited in Blender, read a frame at a time; the points left out
+    because they cannot be a Gaussian). shown: the points the mesh holds now for the frame it shows
+    (Edit Mode: the edit mesh's), taken for that frame. Frames are padded to the largest count
+    (points.points_to_video), which `source["frame_counts"]` records. Raises HyperGSError."""
+    s = obj.hypergs
+    edited, dropped = {}, 0  # frame -> params of the frames whose points are the user's
+    for item in s.overrides:
+        if item.mesh is not None and 0 <= item.frame < s.num_frames:
+            edited[item.frame] = _override_points(obj, item.mesh, item.frame)
+    frame = obj.data.get(SHOWN, NOTHING)
+    if shown is not None and 0 <= frame < s.num_frames:
+        edited[frame] = shown
+    for frame, points in edited.items():
+        edited[frame] = _valid_params(points, s)
+        dropped += len(points["position"]) - len(edited[frame])
+    path = cache.clip_file(obj)
+    reader = cache.FRAMES.reader(path)
+    counts = source_frame_counts(reader.source, s.num_frames, reader.num_gaussians)
+    for frame, params in edited.items():
+        counts[frame] = len(params)
+    n = max(1, int(counts.max()))
+    pad = padding(cache.FRAMES.read_frame(path, 0))
+
+    def frames():
+        for frame in range(s.num_frames):
+            params = edited[frame] if frame in edited else _cache_params(obj, frame)
+            out = np.broadcast_to(pad, (n, 8)).copy()
+            out[:len(params)] = params
+            yield out
+
+    source = dict(path=s.source, frames=list(range(s.source_start, s.source_start + s.num_frames)),
+                  encoder=s.encoder, encode_seconds=s.encode_seconds, psnr=s.psnr)
+    if np.any(counts != n):
+        source[FRAME_COUNTS] = counts.tolist()
+    return ClipFrames(frames, s.num_frames, n, s.canvas_width, s.canvas_height, s.fps, tuple(s.grid), source), dropped
 
 
 def _same(mesh, points: dict) -> bool:
@@ -117,6 +189,12 @@ def keep_edits(obj) -> bool:
         bpy.data.meshes.remove(old)
     _loaded[mesh.session_uid] = (frame, frame_points(obj, frame))
     return True
+
+
+def forget_frame(obj) -> None:
+    """The clip's frames changed (a new cache): its mesh holds no known frame, and sync loads one."""
+    obj.data.pop(SHOWN, None)
+    _loaded.pop(obj.data.session_uid, None)
 
 
 def sync(obj, scene_frame: float, on_main_thread: bool = True) -> bool:

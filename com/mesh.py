@@ -1,10 +1,8 @@
 """A clip's mesh data, shared by the operators (ops/) and the render engine (engine/): writing and
-reading its points' attributes (see hypergs_blender/points.py for what they mean), the `frame`
-attribute, the outline mesh of a linked clip, and the path of a clip's linked file.
-
-One mesh per clip: its vertices are the Gaussians of every frame (position on the image plane, and
-point attributes `scale`, `rotation`, `color`, `frame`); a linked clip's mesh is just the image
-plane's outline (4 vertices, 4 edges), its Gaussians live in the .hgs file (linked.py).
+reading its points' attributes (see hypergs_blender/points.py for what they mean), the frame a cache
+clip's mesh holds (SHOWN, com/frames.py), the outline mesh of a linked clip, and the path of a clip's
+linked file. Clips embedded whole (made before frame caches) also have a `frame` attribute
+(`read_clip_points`).
 """
 from __future__ import annotations
 
@@ -12,8 +10,6 @@ import bpy
 import numpy as np
 
 from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.gaussians import GaussianVideo
-from ..hypergs_blender.points import video_to_points
 
 
 def is_clip(obj) -> bool:
@@ -65,19 +61,6 @@ def _make_color_active(mesh) -> None:
         pass
 
 
-def write_points(mesh, points: dict) -> None:
-    """Fill an empty mesh with vertices carrying every frame's points (float32, foreach_set) and their
-    `frame` attribute (clips embedded whole in the mesh, made before frame caches)."""
-    n = len(points["position"])
-    mesh.vertices.add(n)
-    mesh.attributes["position"].data.foreach_set("vector", points["position"].ravel())
-    for name, (kind, key) in {**POINT_ATTRIBUTES, "frame": ("INT", "value")}.items():
-        attribute = mesh.attributes.new(name, kind, "POINT")
-        attribute.data.foreach_set(key, np.ascontiguousarray(points[name]).ravel())
-    mesh.update()
-    _make_color_active(mesh)
-
-
 def write_frame(mesh, points: dict, frame: int) -> None:
     """Make the (Object Mode) mesh hold one frame's points: position, scale, rotation, color [M, 4]
     (float32), and SHOWN = frame. Its vertices are made again only when their count changes (or an
@@ -107,17 +90,6 @@ def clip_problem(video) -> str | None:
     if video.num_frames < 1 or video.num_gaussians < 1:
         return f"an empty clip ({video.num_frames} frames of {video.num_gaussians} Gaussians)"
     return None
-
-
-def new_clip_mesh(name: str, video: GaussianVideo):
-    points = video_to_points(video)  # a padded clip (see points_to_video) without its padding
-    mesh = bpy.data.meshes.new(name)
-    try:
-        write_points(mesh, points)
-    except BaseException:  # no half-made mesh is left behind
-        bpy.data.meshes.remove(mesh)
-        raise
-    return mesh
 
 
 def outline(canvas_width: int, canvas_height: int) -> np.ndarray:

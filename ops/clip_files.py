@@ -1,6 +1,8 @@
-"""Gaussian video files: hypergs.import_clip (File > Import: .hgs, .usd/.usda/.usdc, .npz; embedded in
-the .blend or linked to its .hgs file), hypergs.export_clip (File > Export: the clip as edited) and
-hypergs.embed_clip (a linked clip's Gaussians copied into the .blend)."""
+"""Gaussian video files: hypergs.import_clip (File > Import: .hgs, .usd/.usda/.usdc, .npz; copied into a
+frame cache, or linked to its .hgs file), hypergs.export_clip (File > Export: the clip as edited, streamed
+a frame at a time) and hypergs.embed_clip (Copy to Frame Cache: a linked clip's file, or a clip embedded
+whole in its mesh by an earlier version, copied into a frame cache, so its points can be edited)."""
+import contextlib
 import os
 import traceback
 
@@ -8,14 +10,43 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..com import linked
-from ..com.mesh import clip_problem, linked_file, read_clip_points
+from ..com import cache as clip_cache
+from ..com import frames, linked
+from ..com.mesh import clip_problem, linked_file, read_clip_points, read_points
 from ..hypergs_blender.errors import HyperGSError
+from ..hypergs_blender.io.cache import write_clip
+from ..hypergs_blender.io.clips import ClipFrames
+from ..hypergs_blender.io.files import make_folders, remove_folders
 from . import scene as clip_scene
 from .context import active_clip, report_error, reported
 
 CLIP_GLOB = "*.hgs;*.usd;*.usda;*.usdc;*.npz"
 USD_SUFFIXES = (".usd", ".usda", ".usdc")
+
+
+def copy_to_cache(context, clip: ClipFrames, name: str, undo: "clip_scene.Undo"):
+    """Write `clip` a frame at a time into a new frame cache for the clip `name` (progress in the
+    window's cursor); returns (its path, its header). The file goes again if `undo` takes back."""
+    path = clip_cache.new_cache_path(name)
+    folders = make_folders(os.path.dirname(path))
+    wm = context.window_manager
+    wm.progress_begin(0, max(1, clip.num_frames))
+    try:
+        header = write_clip(clip, path, lambda done, total: wm.progress_update(done) or True)
+    except BaseException:
+        remove_folders(folders)
+        raise
+    finally:
+        wm.progress_end()
+
+    def remove():
+        try:
+            os.remove(path)
+        except OSError:
+            pass
+        remove_folders(folders)
+    undo.call(remove)
+    return path, header
 
 
 def _settings_from_source(source) -> dict:
@@ -60,32 +91,42 @@ class HYPERGS_OT_import_clip(bpy.types.Operator, ImportHelper):
 
     def _import(self, context) -> str:
         from ..hypergs_blender.io.clips import load_clip
+        from ..hypergs_blender.io.hgs import HgsReader
         if not self.filepath:
             raise HyperGSError("No Gaussian video file given")
         path = bpy.path.abspath(self.filepath)
         name = os.path.basename(path)
-        if self.link and os.path.splitext(path)[1].lower() != ".hgs":
-            raise HyperGSError(f"{name}: only .hgs files can be linked (import .usd and .npz clips embedded)")
-        try:  # everything is read and checked before anything is made
-            video = linked.verify(path) if self.link else load_clip(path)
+        hgs = os.path.splitext(path)[1].lower() == ".hgs"
+        if self.link and not hgs:
+            raise HyperGSError(f"{name}: only .hgs files can be linked (import .usd and .npz clips into a frame cache)")
+        try:  # read and checked before anything is made (a .hgs file's frames: as they are copied)
+            clip = linked.verify(path) if self.link else HgsReader(path) if hgs else load_clip(path)
         except HyperGSError:
             raise  # the readers' messages name the file and the reason
         except Exception as e:  # still one line, naming the file
             traceback.print_exc()
             raise HyperGSError(f"{name}: cannot read it as a Gaussian video ({type(e).__name__}: {e})") from e
-        problem = clip_problem(video)
-        if problem:
-            raise HyperGSError(f"{name}: {problem}")
-        with clip_scene.Undo() as undo:
-            obj = clip_scene.create_clip_object(
-                context.view_layer.active_layer_collection.collection, os.path.splitext(os.path.basename(path))[0],
-                video, frame_start=context.scene.frame_start, speed=1.0, linked_path=path if self.link else None,
-                undo=undo, **_settings_from_source(video.source))
-            changed = clip_scene.prepare_scene(context.scene, undo)
+        try:
+            problem = clip_problem(clip)
+            if problem:
+                raise HyperGSError(f"{name}: {problem}")
+            scene, stem = context.scene, os.path.splitext(name)[0]
+            with clip_scene.Undo() as undo:
+                cache_path, header = None, clip
+                if not self.link:
+                    cache_path, header = copy_to_cache(context, ClipFrames.of(clip), stem, undo)
+                obj = clip_scene.create_clip_object(
+                    context.view_layer.active_layer_collection.collection, stem, header, scene=scene,
+                    frame_start=scene.frame_start, speed=1.0, cache_path=cache_path,
+                    linked_path=path if self.link else None, undo=undo, **_settings_from_source(clip.source))
+                changed = clip_scene.match_scene_timing(scene, obj, undo) + clip_scene.prepare_scene(scene, undo)
+        finally:
+            if isinstance(clip, HgsReader) and not self.link:
+                clip.close()
         clip_scene.select_only(context, obj)
         s = obj.hypergs
         text = (f"HyperGS: '{obj.name}': {s.num_frames} frames x {s.gaussians_per_frame} Gaussians "
-                f"{'linked to' if self.link else 'from'} {os.path.basename(path)}")
+                f"{'linked to' if self.link else 'from'} {name}")
         return text + ("; changed: " + ", ".join(changed) if changed else "")
 
 
@@ -177,30 +218,34 @@ class HYPERGS_OT_export_clip(bpy.types.Operator, ExportHelper):
             raise HyperGSError(f"'{obj.name}' is in {obj.mode.title()} Mode: leave it to link the clip to a file")
         if not os.path.isdir(os.path.dirname(path) or "."):
             raise HyperGSError(f"{os.path.dirname(path)}: no such folder")
-        video, dropped = clip_video(obj)
         options = {"bits": self.bits}
         if suffix in USD_SUFFIXES:
             options["start_frame"] = obj.hypergs.frame_start
-        save_clip(video, path, **options)
+        with clip_frames(obj) as (clip, dropped):
+            save_clip(clip, path, **options)
         linked.forget(path)  # a linked clip reading this file sees the new version
         if self.link:
             clip_scene.link_clip(obj, path)
-        text = (f"HyperGS: '{obj.name}': {video.num_frames} frames exported to {os.path.basename(path)} "
+        text = (f"HyperGS: '{obj.name}': {clip.num_frames} frames exported to {os.path.basename(path)} "
                 f"({os.path.getsize(path) / 1e6:.2f} MB)")
         if dropped:
             text += f"; {dropped} point(s) with a zero scale or invalid values left out"
         return text + ("; the clip is now linked to it" if self.link else "")
 
 
-def clip_video(obj):
-    """(GaussianVideo, points left out) of a clip as it is now: an embedded clip's mesh with the
-    user's edits (Edit Mode included; modifiers other than the frame filter are not applied), or a
-    linked clip's file."""
-    from ..hypergs_blender.io.clips import load_clip
+@contextlib.contextmanager
+def clip_frames(obj):
+    """(clips.ClipFrames, points left out) of a clip as it is now, read a frame at a time: a cache
+    clip's frames with the user's edits (Edit Mode included), a linked clip's file, or a clip embedded
+    whole in its mesh (in memory already) with the user's edits. The object's modifiers other than the
+    frame filter are not applied."""
+    from ..hypergs_blender.io.hgs import HgsReader
     from ..hypergs_blender.points import frame_counts, points_to_video
     s = obj.hypergs
     if s.linked:
-        return load_clip(linked_file(obj)), 0
+        with HgsReader(linked_file(obj)) as reader:
+            yield ClipFrames.of(reader), 0
+        return
     if s.canvas_width <= 0 or s.canvas_height <= 0:
         raise HyperGSError(f"'{obj.name}' has no canvas size")
     if obj.mode == "EDIT":
@@ -209,11 +254,14 @@ def clip_video(obj):
         obj.update_from_editmode()
         mesh = obj.data.copy()
         try:
-            points = read_clip_points(mesh)
+            points = (read_points if frames.is_cached_clip(obj) else read_clip_points)(mesh)
         finally:
             bpy.data.meshes.remove(mesh)
     else:
-        points = read_clip_points(obj.data)
+        points = (read_points if frames.is_cached_clip(obj) else read_clip_points)(obj.data)
+    if frames.is_cached_clip(obj):
+        yield frames.clip_frames(obj, points)
+        return
     count = s.num_frames
     source = dict(path=s.source, frames=list(range(s.source_start, s.source_start + count)), encoder=s.encoder,
                   encode_seconds=s.encode_seconds, psnr=s.psnr)
@@ -221,31 +269,36 @@ def clip_video(obj):
                             grid=tuple(s.grid), source=source)
     if video.num_frames != count:
         video.source["frames"] = list(range(s.source_start, s.source_start + video.num_frames))
-    return video, len(points["frame"]) - int(frame_counts(video).sum())
+    yield ClipFrames.of(video), len(points["frame"]) - int(frame_counts(video).sum())
 
 
 class HYPERGS_OT_embed_clip(bpy.types.Operator):
-    """Copy a linked clip's Gaussians from its .hgs file into the .blend, so its points can be edited"""
+    """Copy the clip's Gaussians into a frame cache of the .blend's, so its points can be edited: a
+    linked clip's .hgs file, or every frame of a clip embedded in its mesh by an earlier version (its
+    edits kept)"""
 
     bl_idname = "hypergs.embed_clip"
-    bl_label = "Embed in .blend"
+    bl_label = "Copy to Frame Cache"
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         obj = active_clip(context)
-        return obj is not None and obj.hypergs.linked and obj.mode == "OBJECT"
+        return obj is not None and not frames.is_cached_clip(obj) and obj.mode == "OBJECT"
 
     def execute(self, context):
-        return reported(self, lambda: self._embed(active_clip(context)))
+        return reported(self, lambda: self._copy(context, active_clip(context)))
 
     @staticmethod
-    def _embed(obj) -> str:
-        from ..hypergs_blender.io.clips import load_clip
-        video = load_clip(linked_file(obj))  # fails before anything changes
-        name = os.path.basename(obj.hypergs.linked_path)
-        clip_scene.embed_clip(obj, video)
-        return f"HyperGS: '{obj.name}': {video.num_frames} frames embedded from {name}"
+    def _copy(context, obj) -> str:
+        s = obj.hypergs
+        what = os.path.basename(s.linked_path) if s.linked else "its mesh"
+        settings = dict(psnr=s.psnr, seconds=s.encode_seconds, encoder=s.encoder, source=s.source,
+                        source_start=s.source_start)
+        with clip_scene.Undo() as undo, clip_frames(obj) as (clip, _):
+            path, header = copy_to_cache(context, clip, obj.name, undo)  # fails before anything changes
+            clip_scene.set_cache(obj, path, header, scene=context.scene, keep_edits=False, **settings)
+        return f"HyperGS: '{obj.name}': {header.num_frames} frames copied from {what} into its frame cache"
 
 
 CLASSES = [HYPERGS_OT_import_clip, HYPERGS_FH_clip, HYPERGS_OT_export_clip, HYPERGS_OT_embed_clip]

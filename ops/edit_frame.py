@@ -1,8 +1,12 @@
-"""hypergs.edit_frame: Edit Mode on the points of the frame the scene shows, the other frames' hidden."""
+"""hypergs.edit_frame: Edit Mode on the points of the frame the scene shows. A cache clip's mesh holds
+just that frame (com/frames.py keeps the edits as the frame's override); a clip embedded whole in its
+mesh (an earlier version's) gets the other frames' points hidden."""
 import bpy
 
+from ..com import frames
+from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.points import clip_frame_index
-from .context import active_clip
+from .context import active_clip, report_error
 
 
 def clip_frame(obj, scene_frame: int) -> int:
@@ -11,7 +15,7 @@ def clip_frame(obj, scene_frame: int) -> int:
 
 
 class HYPERGS_OT_edit_frame(bpy.types.Operator):
-    """Edit the points of the frame shown now: Edit Mode with the other frames' points hidden"""
+    """Edit the points of the frame shown now (Edit Mode)"""
 
     bl_idname = "hypergs.edit_frame"
     bl_label = "Edit Current Frame"
@@ -26,7 +30,17 @@ class HYPERGS_OT_edit_frame(bpy.types.Operator):
         obj = active_clip(context)
         if obj.mode == "EDIT":
             bpy.ops.object.mode_set(mode="OBJECT")
-        if not show_only_frame(obj.data, clip_frame(obj, context.scene.frame_current)):
+        scene = context.scene
+        if frames.is_cached_clip(obj):
+            if frames.wanted_frame(obj, scene.frame_current + scene.frame_subframe) == frames.NOTHING:
+                return report_error(self, HyperGSError(f"Frame {scene.frame_current} shows no frame of '{obj.name}'"))
+            try:
+                frames.sync(obj, scene.frame_current + scene.frame_subframe)
+            except HyperGSError as e:
+                return report_error(self, e)
+            bpy.ops.object.mode_set(mode="EDIT")
+            return {"FINISHED"}
+        if not show_only_frame(obj.data, clip_frame(obj, scene.frame_current)):
             self.report({"ERROR"}, f"'{obj.name}' has no `frame` attribute")
             return {"CANCELLED"}
         bpy.ops.object.mode_set(mode="EDIT")
@@ -47,10 +61,6 @@ def show_only_frame(mesh, frame: int) -> bool:
     mesh.vertices.foreach_set("select", np.zeros_like(hide))
     mesh.update()
     return True
-
-
-# ----------------------------------------------------------------------------------------------------
-# Gaussian video files: .hgs (compressed), .usd/.usda/.usdc, .npz (float32)
 
 
 CLASSES = [HYPERGS_OT_edit_frame]

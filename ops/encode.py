@@ -2,19 +2,23 @@
 3D Viewport), hypergs.convert_strip (the Sequencer's selected strips) and hypergs.reencode (a clip again,
 with the panel's options).
 
-They share one pattern (EncodeOperator): validate on the main thread, encode on a worker thread
-(EncodeJob) while a modal operator shows progress and listens for Esc, then write the result into
-bpy in one go on the main thread. Nothing is written before that, so a cancel or a failure leaves
-the scene as it was, and a finished run is one undo step. Invoked from the UI they run modally;
-executed from a script or in background mode (no window: timers do not tick there) they run
-synchronously and return when done.
+They share one pattern (EncodeOperator): validate on the main thread and pick each clip's new frame
+cache file (com/cache.py), encode on a worker thread that streams the Gaussians into those files
+(EncodeJob) while a modal operator shows progress and listens for Esc, then make the clip objects in
+bpy in one go on the main thread. Nothing in bpy changes before that, and a cancelled or failed job
+leaves no file, so a cancel or a failure leaves the scene and the disk as they were (a failure while
+making the objects removes the files again), and a finished run is one undo step. Invoked from the UI
+they run modally; executed from a script or in background mode (no window: timers do not tick there)
+they run synchronously and return when done.
 """
+import dataclasses
 import os
 
 import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
+from ..com import cache as clip_cache
 from ..com.compat import all_strips
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
@@ -45,7 +49,13 @@ class EncodeOperator:
             sources, settings = self.what_to_encode(context)
         except HyperGSError as e:
             return report_error(self, e)
-        job = EncodeJob(sources, settings, preferences.runtime(context))
+        try:
+            targets = []
+            for source in sources:
+                targets.append(clip_cache.new_cache_path(source.name, targets))
+        except HyperGSError as e:
+            return report_error(self, e)
+        job = EncodeJob(sources, targets, settings, preferences.runtime(context))
         if self.use_modal and context.window is not None and not bpy.app.background:
             self._job = job.start()
             wm = context.window_manager
@@ -98,7 +108,17 @@ class EncodeOperator:
             return {"CANCELLED"}
         if job.error is not None:
             return report_error(self, job.error)
-        return reported(self, lambda: self.apply(context, job.results))  # apply() undoes itself (scene.Undo)
+        outcome = reported(self, lambda: self.apply(context, job.results))  # apply() undoes itself (scene.Undo)
+        if "FINISHED" not in outcome:
+            job.discard()  # the caches no clip reads
+        return outcome
+
+
+def _with_scene_fps(source: Source, scene) -> Source:
+    """An image sequence's clip takes the scene's frame rate (image files have none)."""
+    if not image_sequence.is_image_sequence(source.path):
+        return source
+    return dataclasses.replace(source, fps=scene.render.fps / scene.render.fps_base)
 
 
 def _summary(obj, result, changed) -> str:
@@ -108,10 +128,6 @@ def _summary(obj, result, changed) -> str:
     if changed:
         text += "; changed: " + ", ".join(changed)
     return text
-
-
-def _scene_fps(scene) -> float:
-    return scene.render.fps / scene.render.fps_base
 
 
 class HYPERGS_OT_import_video(EncodeOperator, EncodeOptions, bpy.types.Operator, ImportHelper):
@@ -152,22 +168,20 @@ class HYPERGS_OT_import_video(EncodeOperator, EncodeOptions, bpy.types.Operator,
         return Source(os.path.basename(path), path, self.first_frame - 1, self.last_frame or None)
 
     def what_to_encode(self, context):
-        source = self._source()
+        source = _with_scene_fps(self._source(), context.scene)
         self._path = source.path
-        return [source], quality.settings(self)
+        return [dataclasses.replace(source, name=clip_name(source.path))], quality.settings(self)
 
     def apply(self, context, results):
         (result,) = results
-        name = clip_name(self._path)
-        if image_sequence.is_image_sequence(self._path):  # image files have no frame rate: the scene's
-            result.video.fps = _scene_fps(context.scene)
+        scene = context.scene
         with clip_scene.Undo() as undo:
             obj = clip_scene.create_clip_object(
-                context.view_layer.active_layer_collection.collection, name, result.video,
-                frame_start=context.scene.frame_start, speed=1.0, psnr=result.psnr, seconds=result.seconds,
-                encoder=result.encoder, source=self._path, source_start=int(result.video.source["frames"][0]),
-                undo=undo)
-            changed = clip_scene.prepare_scene(context.scene, undo)
+                context.view_layer.active_layer_collection.collection, clip_name(self._path), result.clip,
+                scene=scene, frame_start=scene.frame_start, speed=1.0, cache_path=result.cache, undo=undo,
+                psnr=result.psnr, seconds=result.seconds, encoder=result.encoder, source=self._path,
+                source_start=int(result.clip.source["frames"][0]))
+            changed = clip_scene.match_scene_timing(scene, obj, undo) + clip_scene.prepare_scene(scene, undo)
         quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
         clip_scene.select_only(context, obj)
         return _summary(obj, result, changed)
@@ -211,7 +225,8 @@ class HYPERGS_OT_convert_strip(EncodeOperator, EncodeOptions, bpy.types.Operator
 
     def what_to_encode(self, context):
         scene = sequencer_scene(context)
-        sources = [strip_source(strip) for strip in strips_to_convert(scene.sequence_editor)]
+        sources = [_with_scene_fps(strip_source(strip), scene)
+                   for strip in strips_to_convert(scene.sequence_editor)]
         self._targets = [(source.name, source.path) for source in sources]
         self._scene = scene.name
         return sources, quality.settings(self)
@@ -226,11 +241,9 @@ class HYPERGS_OT_convert_strip(EncodeOperator, EncodeOptions, bpy.types.Operator
         made = []
         with clip_scene.Undo() as undo:
             for strip, (_, path), result in zip(strips, self._targets, results):
-                if strip.type == "IMAGE":  # image files have no frame rate: the scene's
-                    result.video.fps = _scene_fps(scene)
                 obj, scene_strip = clip_scene.add_strip_scene(
-                    scene, strip, result.video, undo=undo, psnr=result.psnr, seconds=result.seconds,
-                    encoder=result.encoder, source=path, source_start=int(result.video.source["frames"][0]))
+                    scene, strip, result.clip, result.cache, undo=undo, psnr=result.psnr, seconds=result.seconds,
+                    encoder=result.encoder, source=path, source_start=int(result.clip.source["frames"][0]))
                 quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
                 made.append((obj, scene_strip, result))
             changed = clip_scene.sequencer_preview_rendered(scene, undo)
@@ -246,10 +259,15 @@ class HYPERGS_OT_convert_strip(EncodeOperator, EncodeOptions, bpy.types.Operator
 
 
 class HYPERGS_OT_reencode(EncodeOperator, bpy.types.Operator):
-    """Encode the clip's source again with the panel's quality (replaces its points)"""
+    """Encode the clip's source again with the panel's quality into a new frame cache (the clip's
+    edited frames are kept or discarded, as chosen)"""
 
     bl_idname = "hypergs.reencode"
     bl_label = "Re-encode"
+
+    keep_edits: BoolProperty(name="Keep Edited Frames", default=True,
+                             description="Keep the frames edited in Blender as they are (else they show the "
+                                         "new encode like the others)")
 
     @classmethod
     def poll(cls, context):
@@ -258,7 +276,15 @@ class HYPERGS_OT_reencode(EncodeOperator, bpy.types.Operator):
 
     def invoke(self, context, event):
         self.use_modal = True
+        if active_clip(context).hypergs.overrides:  # ask what becomes of them
+            return context.window_manager.invoke_props_dialog(self)
         return self.execute(context)
+
+    def draw(self, context):
+        count = len(active_clip(context).hypergs.overrides)
+        self.layout.label(text=f"{count} frame{'s' if count > 1 else ''} of this clip {'were' if count > 1 else 'was'} "
+                               f"edited in Blender", icon="INFO")
+        self.layout.prop(self, "keep_edits")
 
     def execute(self, context):
         return self._begin(context)
@@ -276,10 +302,12 @@ class HYPERGS_OT_reencode(EncodeOperator, bpy.types.Operator):
             raise HyperGSError(f"The object '{self._name}' is gone")
         if obj.mode != "OBJECT":
             raise HyperGSError(f"'{obj.name}' is in {obj.mode.title()} Mode: leave it and re-encode again")
-        clip_scene.replace_clip_mesh(obj, result.video, psnr=result.psnr, seconds=result.seconds,
-                                     encoder=result.encoder, source=obj.hypergs.source,
-                                     source_start=obj.hypergs.source_start)
-        return _summary(obj, result, [])
+        s = obj.hypergs
+        clip_scene.set_cache(obj, result.cache, result.clip, scene=context.scene, keep_edits=self.keep_edits,
+                             psnr=result.psnr, seconds=result.seconds, encoder=result.encoder, source=s.source,
+                             source_start=s.source_start)
+        kept = f"; {len(s.overrides)} edited frame(s) kept" if s.overrides else ""
+        return _summary(obj, result, []) + kept
 
 
 CLASSES = [HYPERGS_OT_import_video, HYPERGS_FH_video, HYPERGS_OT_convert_strip, HYPERGS_OT_reencode]

@@ -1,14 +1,23 @@
 """Encoding work that runs off Blender's main thread. No bpy here: a job only sees paths and the
-encode settings, and hands back GaussianVideos; the operator writes to bpy on the main thread when
-the job is done."""
+encode settings; it streams each clip's Gaussians into a new frame cache file (io/cache.py), a group of
+frames at a time, and hands back what it wrote; the operator writes to bpy on the main thread when the
+job is done.
+
+All or nothing: a job that fails or is cancelled leaves no file behind (the cache writer only renames a
+complete file into place, and the caches of the clips already done are removed again), nor a folder it
+made; `discard()` does the same for a finished job whose result the operator could not use. The
+encoder's runtime memory is given back when a job ends (`release`: onnxruntime's arena)."""
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass
 
 from ..hypergs_blender.encode import EncodePlan, EncodeSettings
-from ..hypergs_blender.gaussians import GaussianVideo
+from ..hypergs_blender.io import cache
+from ..hypergs_blender.io.files import make_folders, remove_folders
+from ..hypergs_blender.io.hgs import HgsHeader
 from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
 
 PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
@@ -16,43 +25,56 @@ PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measu
 
 @dataclass(frozen=True)
 class Source:
-    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end)."""
+    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end); `fps`, when
+    given, is the clip's frame rate instead of the source's (image files have none: the scene's)."""
     name: str
     path: str
     start: int = 0
     stop: int | None = None
+    fps: float | None = None
 
 
 @dataclass
 class EncodeResult:
-    video: GaussianVideo
+    cache: str  # the frame cache file written (absolute path)
+    clip: HgsHeader  # what it holds: canvas, Gaussians per frame, frames, fps, grid, source
     psnr: float
     seconds: float
     encoder: str  # what encoded, and on which device (describe_encoder)
 
 
-def run_encode(source: Source, settings: EncodeSettings, runtime: Runtime = Runtime(), progress=None) -> EncodeResult:
-    """Encode, measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
-    runtime: where the network runs; progress(done, total) -> False cancels (raises Cancelled)."""
+def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, runtime: Runtime = Runtime(),
+               progress=None) -> EncodeResult:
+    """Encode `source` with `encoder` (make_encoder(runtime)) into a new frame cache at `target` (its
+    folder must exist), measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
+    progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
-    encoder = make_encoder(runtime)
     plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
-    video = plan.video(progress, psnr_frames=PSNR_FRAMES)
-    return EncodeResult(video, plan.psnr, time.perf_counter() - started, describe_encoder(encoder, runtime))
+    with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
+                      plan.source) as writer:
+        for _, params in plan.chunks(progress, psnr_frames=PSNR_FRAMES):
+            writer.write(params)
+    return EncodeResult(target, writer.header, plan.psnr, time.perf_counter() - started,
+                        describe_encoder(encoder, runtime))
 
 
 class EncodeJob:
-    """run_encode for each source in turn, on a worker thread; `cancel()` makes its progress callback
-    return False. All or nothing: the job has `results` for every source, or an `error`."""
+    """run_encode for each source in turn into its target path, on a worker thread; `cancel()` makes
+    its progress callback return False. All or nothing (see the module doc): the job has `results` for
+    every source, or an `error` and no file."""
 
-    def __init__(self, sources: list[Source], settings: EncodeSettings, runtime: Runtime = Runtime()):
-        self.sources = list(sources)
+    def __init__(self, sources: list[Source], targets: list[str], settings: EncodeSettings,
+                 runtime: Runtime = Runtime()):
+        if len(targets) != len(sources):
+            raise ValueError("one target per source")
+        self.sources, self.targets = list(sources), list(targets)
         self.settings = settings
         self.runtime = runtime
         self.index = 0  # the source being encoded
         self.done, self.total = 0, 0  # its frames
         self.results: list[EncodeResult] = []
         self.error: BaseException | None = None
+        self._folders: list = []  # folders this job made (removed again by discard when empty)
         self._cancel = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hypergs-encode", daemon=True)
 
@@ -62,11 +84,29 @@ class EncodeJob:
 
     def _run(self):
         try:
-            for self.index, source in enumerate(self.sources):
-                self.done = self.total = 0
-                self.results.append(run_encode(source, self.settings, self.runtime, self._progress))
+            encoder = make_encoder(self.runtime)
+            try:
+                for self.index, (source, target) in enumerate(zip(self.sources, self.targets)):
+                    self.done = self.total = 0
+                    self._folders += make_folders(os.path.dirname(target))
+                    self.results.append(run_encode(source, self.settings, target, encoder, self.runtime,
+                                                   self._progress))
+            finally:
+                encoder.release()
         except BaseException as e:  # handed to the main thread, which reports it
             self.error = e
+            self.discard()
+
+    def discard(self) -> None:
+        """Remove what the job wrote: its cache files, then the folders it made if they are empty."""
+        for result in self.results:
+            try:
+                os.remove(result.cache)
+            except OSError:
+                pass
+        self.results.clear()
+        remove_folders(self._folders)
+        self._folders.clear()
 
     def start(self):
         self._thread.start()

@@ -100,7 +100,7 @@ def plan(sources: list[Source], chosen: EncodeSettings, runtime: Runtime) -> lis
         frames = max(0, stop - source.start)
         layout = chosen.layout(info.width, info.height, encoder)
         plans.append(Plan(source, info.width, info.height, layout, frames,
-                          estimate(layout, frames, chosen.refine, encoder.name)))
+                          estimate(layout, frames, chosen.refine, encoder.name, runtime.cpu_threads)))
     return plans
 
 
@@ -139,10 +139,11 @@ def summary(plans: list[Plan], chosen: EncodeSettings) -> list[tuple[str, str]]:
         lines.append((f"and {len(plans) - 3} more clips", "BLANK1"))
     frames = sum(p.frames for p in plans)
     seconds = sum(p.estimate.seconds for p in plans)
-    size = sum(p.estimate.blend_bytes for p in plans)
+    size = sum(p.estimate.cache_bytes for p in plans)
     refine = f", refined {chosen.refine} steps" if chosen.refine else ""
-    lines.append((f"{frames} frames{refine}: about {_duration(seconds)}, {_megabytes(size)} in the .blend",
-                  "TIME"))
+    threads = plans[0].estimate.threads if plans else 1
+    lines.append((f"{frames} frames{refine}: about {_duration(seconds)} on {threads} CPU thread"
+                  f"{'s' if threads > 1 else ''}, {_megabytes(size)} of frame cache", "TIME"))
     for note in [p.layout.note for p in plans if p.layout.note][:1] + ([chosen.note] if chosen.note else []):
         lines.append((note, "INFO"))
     return lines

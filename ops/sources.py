@@ -96,6 +96,6 @@ def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, in
 
 
 def reencode_source(obj) -> Source:
-    """The frames a clip was encoded from (what Re-encode encodes again)."""
+    """The frames a clip was encoded from, at the clip's frame rate (what Re-encode encodes again)."""
     s = obj.hypergs
-    return Source(obj.name, check_video_path(s.source), s.source_start, s.source_start + s.num_frames)
+    return Source(obj.name, check_video_path(s.source), s.source_start, s.source_start + s.num_frames, s.fps)

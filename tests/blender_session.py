@@ -85,6 +85,49 @@ def read_mesh(mesh):
     return out
 
 
+def mesh_frames(bpy, obj, frames) -> list:
+    """Canvas parameters [M, 8] of a cache clip's frames (clip frame indices) as its mesh holds them after
+    its scene goes to each (the frame-change handler loads them); the scene is left at the last one."""
+    from hypergs_blender.points import points_to_params
+    s = obj.hypergs
+    scene = obj.users_scene[0] if obj.users_scene else bpy.context.scene
+    out = []
+    for frame in frames:
+        scene.frame_set(s.frame_start + int(frame))
+        mesh = obj.data
+        n = len(mesh.vertices)
+        values = {}
+        for name, key, size in (("position", "vector", 3), ("scale", "vector", 2), ("rotation", "value", 1),
+                                ("color", "color", 4)):
+            values[name] = np.empty(n * size, np.float32)
+            mesh.attributes[name].data.foreach_get(key, values[name])
+        out.append(points_to_params(values["position"].reshape(n, 3), values["scale"].reshape(n, 2),
+                                    values["rotation"], values["color"].reshape(n, 4),
+                                    s.canvas_width, s.canvas_height))
+    return out
+
+
+def cache_error(a, b) -> float:
+    """How far Gaussian parameters read back from a frame cache (`a`, [..., 8]) are from the float32 ones
+    written (`b`), as a fraction of what the cache's float16 codec allows: the means kept to float32
+    rounding (1e-6), the rest to float16 (a relative 2^-11, taken as 2^-10; the rotation modulo pi, as
+    stored). At most 1 when the cache keeps what it claims."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        return float("inf")
+    means = np.abs(a[..., :2] - b[..., :2]).max(initial=0) / 1e-6
+    rest = np.abs(a[..., [2, 3, 5, 6, 7]] - b[..., [2, 3, 5, 6, 7]]) / np.maximum(np.abs(b[..., [2, 3, 5, 6, 7]]), 2 ** -14)
+    turn = np.mod(a[..., 4] - b[..., 4], np.pi)
+    rotation = np.minimum(turn, np.pi - turn) / np.pi
+    return float(max(means, rest.max(initial=0) / 2 ** -10, rotation.max(initial=0) / 2 ** -10))
+
+
+def files_under(folder) -> list[str]:
+    """Every file and folder under `folder` (relative paths, sorted; [] when it does not exist)."""
+    folder = Path(folder)
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*")) if folder.is_dir() else []
+
+
 def attempt_unchanged(bpy, expect, call) -> dict:
     """Run an operator call expected to fail: did it raise, with what message, and is the scene
     (snapshot) exactly as before?"""

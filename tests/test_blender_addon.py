@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from blender_session import (Recorder, addon_module, attempt_unchanged, diff, operator_defaults, read_mesh,
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, mesh_frames, operator_defaults,
                              run_blender_session, session_main, snapshot, start_session, step, types_namespace)
 from blender_headless import SAMPLE, install_extension, read_png, render_png
 from conftest import make_pan_clip
@@ -48,7 +48,7 @@ def test_install_and_enable(session):
     assert r["module"].startswith("bl_ext.user_default.hypergs")
     assert "/extensions/user_default/hypergs/" in r["file"]
     assert r["operators"] == ["convert_strip", "edit_frame", "embed_clip", "export_clip", "import_clip",
-                              "import_video", "reencode"]
+                              "import_video", "pack_cache", "reencode", "unpack_cache"]
     assert r["engine"] and not r["torch_importable"]
 
 
@@ -94,7 +94,7 @@ def test_cancelled_import_changes_nothing(session):
     r = step(session, "cancel")
     assert r["result"] == ["CANCELLED"]
     assert r["progress_calls"] >= 1 and r["unchanged"], r["diff"]
-    assert r["thread_job_cancelled"]
+    assert r["thread_job_cancelled"] and r["thread_job_left"] == []  # no cache file, nor the folder it made
 
 
 def test_import_video(session):
@@ -111,11 +111,12 @@ def test_import_video(session):
 def test_imported_clip_shows_one_frame_at_a_time(session):
     r = step(session, "clip")
     assert r["result"] == ["FINISHED"]
-    assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == 70 * GAUSSIANS
+    # The mesh holds the scene frame's Gaussians (the rest are in the clip's frame cache).
+    assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == GAUSSIANS
     assert r["frame_start"] == 1 and r["canvas"] == [432, 240] and r["fps"] == pytest.approx(24)
-    assert r["evaluated_vertices"] == GAUSSIANS
+    assert r["evaluated_vertices"] == GAUSSIANS and r["cache"]
     assert r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
-    assert r["attributes"] == {"color": "FLOAT_COLOR", "frame": "INT", "rotation": "FLOAT", "scale": "FLOAT2"}
+    assert r["attributes"] == {"color": "FLOAT_COLOR", "rotation": "FLOAT", "scale": "FLOAT2"}
     assert r["psnr"] > 10 and abs(r["psnr"] - r["reference_psnr"]) < 1.0
     # What ran, shown in the panel and the report.
     assert r["encoder"] == ("floor" if os.environ.get("HYPERGS_ENCODER") == "floor" else "network-onnx on CPU (all cores)")
@@ -150,7 +151,7 @@ def test_moving_a_point_in_edit_mode_changes_the_render_there(session):
 
 def test_delete_and_recolour_in_edit_mode_show_in_render(session):
     r = step(session, "delete_recolour")
-    assert r["points_in_frame"] == GAUSSIANS - 1 and r["total"] == 70 * GAUSSIANS - 1
+    assert r["points_in_frame"] == GAUSSIANS - 1 and r["points_in_other_frame"] == GAUSSIANS
     assert r["recoloured"] == [1.0, 0.0, 0.0, 1.0]
     assert r["psnr_vs_core_edited"] > 40
 
@@ -163,24 +164,24 @@ def test_geometry_nodes_set_position_shows_in_render(session):
 
 def test_save_and_reload_keeps_every_frame(session):
     r = step(session, "save_reload")
-    assert r["attributes_equal"] and r["settings_equal"]
-    assert r["frames_after"] == list(range(70)) and r["vertices"] == 70 * GAUSSIANS - 1
+    assert r["frames_equal"] and r["settings_equal"]
+    assert r["edited_frames"] == [34, 49] and r["vertices_at_50"] == GAUSSIANS - 1
     assert r["render_psnr_vs_before"] > 50
 
 
 def test_edit_current_frame_shows_only_that_frame(session):
     r = step(session, "edit_frame")
     assert r["mode"] == "EDIT"
-    assert r["visible"] == GAUSSIANS and r["visible_frames"] == [r["clip_frame"]]
+    assert r["visible"] == GAUSSIANS and r["shown"] == r["clip_frame"]
 
 
 def test_reencode_replaces_points_and_keeps_modifiers(session):
     r = step(session, "reencode")
     assert r["result"] == ["FINISHED"]
-    assert (r["vertices"], r["gaussians_per_frame"]) == (70 * REENCODED, REENCODED)
-    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, REENCODED)
+    assert (r["vertices"], r["gaussians_per_frame"]) == (REENCODED, REENCODED)
+    assert r["modifiers"] == ["HyperGS Points", "Shift"] and r["display_points"] in (None, REENCODED)
     assert r["psnr"] != r["psnr_before"]
-    assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
+    assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the edited frames' meshes are gone (discarded)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -206,7 +207,6 @@ def run_session(zip_path, work, out_path):
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.io.images import resize_exact
     from hypergs_blender.metrics import psnr
-    from hypergs_blender.points import points_to_params
     from hypergs_blender.render import render_frames, render_params
     encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
     scene = bpy.context.scene
@@ -329,11 +329,13 @@ def run_session(zip_path, work, out_path):
         after = snapshot(bpy)
         jobs = addon_module(addon, "ops.jobs")
         chosen = addon_module(addon, "hypergs_blender.encode").EncodeSettings(gaussians=500)
-        threaded = jobs.EncodeJob([jobs.Source(CLIP_NAME, str(CLIP))], chosen).start()
+        target = Path(work) / "cancelled" / "clip.hgs"
+        threaded = jobs.EncodeJob([jobs.Source(CLIP_NAME, str(CLIP))], [str(target)], chosen).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
-                    diff=diff(before, after), thread_job_cancelled=type(threaded.error).__name__ == "Cancelled")
+                    diff=diff(before, after), thread_job_cancelled=type(threaded.error).__name__ == "Cancelled",
+                    thread_job_left=[str(p) for p in target.parent.parent.glob("cancelled*")])
 
     @record("import_video")
     def _():
@@ -366,7 +368,7 @@ def run_session(zip_path, work, out_path):
         ref_psnr = float(np.mean([psnr(render_frames(reference, 432, 240, [i])[0], f / np.float32(255))
                                   for i, f in truth.items()]))
         return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
-                    vertices=len(obj.data.vertices), frame_start=s.frame_start,
+                    vertices=len(obj.data.vertices), frame_start=s.frame_start, cache=s.cache is not None,
                     canvas=[s.canvas_width, s.canvas_height],
                     fps=s.fps, evaluated_vertices=len(ev.data.vertices),
                     engine=scene.render.engine, view_transform=scene.view_settings.view_transform,
@@ -414,11 +416,11 @@ def run_session(zip_path, work, out_path):
         scene.frame_start, scene.frame_end = 1, 70
         return dict(files=files, first_vs_last_psnr=float(psnr(last, first)))
 
-    def frame_params(mesh, clip_frame):
-        pts = read_mesh(mesh)
-        keep = pts["frame"] == clip_frame
-        return points_to_params(pts["position"][keep], pts["scale"][keep], pts["rotation"][keep],
-                                pts["color"][keep], 432, 240), np.flatnonzero(keep)
+    def frame_params(clip_frame):
+        """The clip frame's parameters as the mesh holds them there (the scene goes to it), and the
+        vertex index of each."""
+        params = mesh_frames(bpy, obj, [clip_frame])[0]
+        return params, np.arange(len(params))
 
     W, H = 864, 480
 
@@ -428,7 +430,7 @@ def run_session(zip_path, work, out_path):
         frame, clip_frame = 35, 34
         before, _ = f12(frame, W, H, "move_before")
         other_before, _ = f12(1, W, H, "move_other_before")
-        params, index = frame_params(obj.data, clip_frame)
+        params, index = frame_params(clip_frame)
         k = int(np.argmax(params[:, 5:8].sum(1) * (np.abs(params[:, 0]) < 0.6) * (np.abs(params[:, 1]) < 0.6)))
         vertex = int(index[k])
         delta = np.array([0.35, 0.25, 0.0])  # plane units (canvas height = 2)
@@ -441,7 +443,7 @@ def run_session(zip_path, work, out_path):
         bpy.ops.object.mode_set(mode="OBJECT")
         after, _ = f12(frame, W, H, "move_after")
         other_after, _ = f12(1, W, H, "move_other_after")
-        edited, _ = frame_params(obj.data, clip_frame)
+        edited, _ = frame_params(clip_frame)
         change = np.abs(after - before).max(-1)
         old = ((params[k, 0] + 1) * W / 2, (params[k, 1] + 1) * H / 2)
         new = ((edited[k, 0] + 1) * W / 2, (edited[k, 1] + 1) * H / 2)
@@ -460,8 +462,7 @@ def run_session(zip_path, work, out_path):
         import bmesh
         frame, clip_frame = 50, 49
         bpy.context.view_layer.objects.active = obj
-        scene.frame_set(frame)
-        params, index = frame_params(obj.data, clip_frame)
+        params, index = frame_params(clip_frame)  # (the scene goes to `frame`)
         order = np.argsort(-params[:, 5:8].sum(1))
         recolour, delete = int(index[order[0]]), int(index[order[1]])
         bpy.ops.hypergs.edit_frame()
@@ -479,12 +480,12 @@ def run_session(zip_path, work, out_path):
         select(delete)
         bpy.ops.mesh.delete(type="VERT")
         bpy.ops.object.mode_set(mode="OBJECT")
-        pts = read_mesh(obj.data)
+        in_frame = len(obj.data.vertices)
+        recoloured = list(obj.data.attributes["color"].data[recolour - (delete < recolour)].color)
         after, _ = f12(frame, W, H, "recolour_after")
-        edited, _ = frame_params(obj.data, clip_frame)
-        return dict(points_in_frame=int((pts["frame"] == clip_frame).sum()), total=len(pts["frame"]),
-                    recoloured=pts["color"][recolour - (delete < recolour)].tolist(),
-                    psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))))
+        edited, _ = frame_params(clip_frame)
+        return dict(points_in_frame=in_frame, points_in_other_frame=len(frame_params(clip_frame + 1)[0]),
+                    recoloured=recoloured, psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))))
 
     @record("geometry_nodes")
     def _():
@@ -493,30 +494,31 @@ def run_session(zip_path, work, out_path):
         mod = obj.modifiers.new("Shift", "NODES")
         mod.node_group = set_position_group(bpy, (0.25, 0.0, 0.0))
         shifted, _ = f12(frame, W, H, "gn_after")
-        params, _ = frame_params(obj.data, frame - 1)
+        params, _ = frame_params(frame - 1)
         params[:, 0] += 0.25 / (432 / 240)  # plane x -> canvas x
         return dict(psnr_vs_unmodified=float(psnr(shifted, plain)),
                     psnr_vs_core_shifted=float(psnr(shifted, core_render(params, W, H))))
 
     @record("save_reload")
     def _():
-        before_attrs = read_mesh(obj.data)
+        checked = (9, 34, 49)  # clip frames: one as encoded, two edited (override meshes)
+        before_frames = mesh_frames(bpy, obj, checked)
         before_settings = settings(obj)
         before_render, _ = f12(35, W, H, "reload_before")
         path = Path(work) / "clip.blend"
         bpy.ops.wm.save_as_mainfile(filepath=str(path))
         bpy.ops.wm.open_mainfile(filepath=str(path))
         again = bpy.data.objects[CLIP_NAME]
-        after_attrs = read_mesh(again.data)
+        after_frames = mesh_frames(bpy, again, checked)
         sc = bpy.context.scene
-        sc.frame_set(35)
         png = Path(work) / "reload_after.png"
         render_png(bpy, sc, 35, png)
         after_render = read_png(bpy, png)
         ctx["obj"] = again
-        return dict(attributes_equal=all(np.array_equal(before_attrs[k], after_attrs[k]) for k in before_attrs),
+        return dict(frames_equal=all(np.array_equal(a, b) for a, b in zip(before_frames, after_frames)),
                     settings_equal=settings(again) == before_settings,
-                    frames_after=sorted(set(after_attrs["frame"].tolist())), vertices=len(after_attrs["frame"]),
+                    edited_frames=sorted(o.frame for o in again.hypergs.overrides),
+                    vertices_at_50=len(after_frames[2]),
                     render_psnr_vs_before=float(psnr(after_render, before_render)))
 
     @record("edit_frame")
@@ -528,18 +530,16 @@ def run_session(zip_path, work, out_path):
         bpy.ops.hypergs.edit_frame()
         mode = again.mode
         bpy.ops.object.mode_set(mode="OBJECT")
-        pts = read_mesh(again.data)
         hidden = np.empty(len(again.data.vertices), bool)
         again.data.vertices.foreach_get("hide", hidden)
-        return dict(mode=mode, clip_frame=19, visible=int((~hidden).sum()),
-                    visible_frames=sorted(set(pts["frame"][~hidden].tolist())))
+        return dict(mode=mode, clip_frame=19, visible=int((~hidden).sum()), shown=again.data.get("hypergs_frame"))
 
     @record("reencode")
     def _():
         again = ctx["obj"]
         psnr_before = again.hypergs.psnr
         again.hypergs.quality, again.hypergs.gaussian_count = "CUSTOM", 500
-        result = bpy.ops.hypergs.reencode()
+        result = bpy.ops.hypergs.reencode(keep_edits=False)
         s = again.hypergs
         return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
                     psnr_before=psnr_before, psnr=s.psnr,

@@ -4,6 +4,12 @@ bench and the Blender tests do in one: a movie strip, F12 to a PNG and back, a r
 the source frames to compare with, steps recorded to JSON as they finish.
 
 bpy imports once per process: every user runs its session in a fresh Python (a subprocess).
+
+Run as a script it is a render farm's command line, `blender -b FILE.blend -a`, with the wheel: a fresh
+process with the extension installed in USER_DIR (enabled, as a farm's preferences have it) opens the
+.blend and renders its animation, printing one JSON line: the files written, or the error that stopped it.
+
+    python tools/blender_headless.py render FILE.blend --user USER_DIR [--frames 1-3]
 """
 from __future__ import annotations
 
@@ -154,3 +160,38 @@ def exit_session(status: int = 0) -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)
+
+
+def render_animation_main(argv=None) -> int:
+    """The script's `render` command (see the module doc); exit status 1 when the render failed."""
+    import argparse
+    parser = argparse.ArgumentParser(description="blender -b FILE.blend -a, with the bpy wheel")
+    parser.add_argument("command", choices=["render"])
+    parser.add_argument("blend")
+    parser.add_argument("--user", required=True, help="Blender's user folder, the extension installed there")
+    parser.add_argument("--frames", help="FIRST-LAST instead of the scene's frame range")
+    args = parser.parse_args(argv)
+    bpy = start_blender(args.user)
+    import addon_utils
+    addon_utils.enable(f"bl_ext.user_default.{EXTENSION_ID}", default_set=True)
+    bpy.ops.wm.open_mainfile(filepath=str(Path(args.blend).resolve()))
+    scene = bpy.context.scene
+    if args.frames:
+        scene.frame_start, scene.frame_end = map(int, args.frames.split("-"))
+    before = set(Path(bpy.path.abspath(scene.render.filepath)).parent.glob("*"))
+    report = {"frames": [scene.frame_start, scene.frame_end]}
+    started = time.perf_counter()
+    try:
+        bpy.ops.render.render(animation=True)
+        report["error"] = None
+    except RuntimeError as e:  # an ERROR report stops the animation (as `blender -a` does)
+        report["error"] = str(e)
+    report["seconds"] = time.perf_counter() - started
+    written = set(Path(bpy.path.abspath(scene.render.filepath)).parent.glob("*")) - before
+    report["written"] = sorted(str(p) for p in written)
+    print(json.dumps(report), flush=True)
+    return 1 if report["error"] else 0
+
+
+if __name__ == "__main__":
+    exit_session(render_animation_main())

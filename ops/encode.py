@@ -246,7 +246,7 @@ class HYPERGS_OT_convert_strip(EncodeOperator, EncodeOptions, bpy.types.Operator
                     encoder=result.encoder, source=path, source_start=int(result.clip.source["frames"][0]))
                 quality.copy_options(self, obj.hypergs)  # what Re-encode starts from
                 made.append((obj, scene_strip, result))
-            changed = clip_scene.sequencer_preview_rendered(scene, undo)
+            changed = clip_scene.sequencer_preview_rendered(scene, undo) + clip_scene.lock_interface(scene, undo)
         for strip in strips:
             strip.select = False
         for _, scene_strip, _ in made:

@@ -321,20 +321,18 @@ def select_only(context, obj) -> None:
 
 def prepare_scene(scene, undo: Undo | None = None) -> list[str]:
     """Render settings the clips need; returns what was changed, to tell the user. With `undo`, the
-    settings and a camera it adds are registered there. Render > Lock Interface goes on: the frame
-    handler (com/frames.py) writes the clips' meshes while a render runs, which Blender's handler
-    documentation allows only with the interface locked."""
+    settings and a camera it adds are registered there. Render > Lock Interface goes on (lock_interface):
+    the frame handler (com/frames.py) writes the clips' meshes while a render runs, which Blender's
+    handler documentation allows only with the interface locked."""
     changed = []
     render, vs = scene.render, scene.view_settings
     if undo is not None:
-        was = render.engine, render.use_lock_interface, vs.view_transform, vs.look, vs.exposure, vs.gamma
+        was = render.engine, vs.view_transform, vs.look, vs.exposure, vs.gamma
         undo.call(lambda: _set_render_settings(render, vs, *was))
     if render.engine != "HYPERGS":
         render.engine = "HYPERGS"
         changed.append("render engine to HyperGS")
-    if not render.use_lock_interface:
-        render.use_lock_interface = True
-        changed.append("Lock Interface on (the clips' frames load while a render runs)")
+    changed += lock_interface(scene, undo)
     if vs.view_transform != VIEW_TRANSFORM or vs.look != "None" or vs.exposure != 0 or vs.gamma != 1:
         vs.view_transform = VIEW_TRANSFORM
         vs.look = "None"
@@ -347,10 +345,22 @@ def prepare_scene(scene, undo: Undo | None = None) -> list[str]:
     return changed
 
 
-def _set_render_settings(render, view_settings, engine, lock_interface, view_transform, look, exposure, gamma):
-    render.engine, render.use_lock_interface = engine, lock_interface
+def _set_render_settings(render, view_settings, engine, view_transform, look, exposure, gamma):
+    render.engine = engine
     view_settings.view_transform, view_settings.look = view_transform, look
     view_settings.exposure, view_settings.gamma = exposure, gamma
+
+
+def lock_interface(scene, undo: Undo | None = None) -> list[str]:
+    """Render > Lock Interface on for a scene that renders clips (itself, or through scene strips);
+    returns what was changed, to tell the user."""
+    render = scene.render
+    if render.use_lock_interface:
+        return []
+    render.use_lock_interface = True
+    if undo is not None:
+        undo.call(lambda: setattr(render, "use_lock_interface", False))
+    return [f"Lock Interface on in '{scene.name}' (the clips' frames load while a render runs)"]
 
 
 def match_scene_timing(scene, obj, undo: Undo | None = None) -> list[str]:

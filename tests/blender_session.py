@@ -71,20 +71,6 @@ def session_main(run_session) -> None:
     exit_session()
 
 
-def read_mesh(mesh):
-    n = len(mesh.vertices)
-    out = {"position": np.empty(n * 3, np.float32)}
-    mesh.attributes["position"].data.foreach_get("vector", out["position"])
-    for name, key, size, dtype in (("scale", "vector", 2, np.float32), ("rotation", "value", 1, np.float32),
-                                   ("color", "color", 4, np.float32), ("frame", "value", 1, np.int32)):
-        out[name] = np.empty(n * size, dtype)
-        mesh.attributes[name].data.foreach_get(key, out[name])
-    out["position"] = out["position"].reshape(n, 3)
-    out["scale"] = out["scale"].reshape(n, 2)
-    out["color"] = out["color"].reshape(n, 4)
-    return out
-
-
 def mesh_frames(bpy, obj, frames) -> list:
     """Canvas parameters [M, 8] of a cache clip's frames (clip frame indices) as its mesh holds them after
     its scene goes to each (the frame-change handler loads them); the scene is left at the last one."""
@@ -116,10 +102,21 @@ def cache_error(a, b) -> float:
     if a.shape != b.shape:
         return float("inf")
     means = np.abs(a[..., :2] - b[..., :2]).max(initial=0) / 1e-6
-    rest = np.abs(a[..., [2, 3, 5, 6, 7]] - b[..., [2, 3, 5, 6, 7]]) / np.maximum(np.abs(b[..., [2, 3, 5, 6, 7]]), 2 ** -14)
+    others = [2, 3, 5, 6, 7]
+    rest = np.abs(a[..., others] - b[..., others]) / np.maximum(np.abs(b[..., others]), 2 ** -14)
     turn = np.mod(a[..., 4] - b[..., 4], np.pi)
     rotation = np.minimum(turn, np.pi - turn) / np.pi
     return float(max(means, rest.max(initial=0) / 2 ** -10, rotation.max(initial=0) / 2 ** -10))
+
+
+def display_points(bpy, obj):
+    """Points of the evaluated point cloud that shows the clip in Solid mode (None: no API to look)."""
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    if not hasattr(bpy.types, "GeometrySet"):
+        return None
+    geometry = bpy.types.GeometrySet.from_evaluated_object(ev)  # keep it alive while reading
+    cloud = geometry.pointcloud
+    return len(cloud.points) if cloud is not None else 0
 
 
 def files_under(folder) -> list[str]:
@@ -161,6 +158,7 @@ def snapshot(bpy):
                          gamma=vs.gamma, camera=sc.camera.name if sc.camera else None,
                          frames=[sc.frame_start, sc.frame_end, sc.frame_current], strips=strips,
                          preview=sc.render.sequencer_gl_preview, use_sequencer=sc.render.use_sequencer,
+                         lock=sc.render.use_lock_interface, fps=[sc.render.fps, sc.render.fps_base],
                          active=bpy.context.view_layer.objects.active.name
                          if bpy.context.view_layer.objects.active else None,
                          selected=sorted(o.name for o in bpy.context.view_layer.objects if o.select_get()))

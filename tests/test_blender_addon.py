@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from blender_session import (Recorder, addon_module, attempt_unchanged, diff, mesh_frames, operator_defaults,
-                             run_blender_session, session_main, snapshot, start_session, step, types_namespace)
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, display_points, mesh_frames,
+                             operator_defaults, run_blender_session, session_main, snapshot, start_session, step,
+                             types_namespace)
 from blender_headless import SAMPLE, install_extension, read_png, render_png
 from conftest import make_pan_clip
 
@@ -547,16 +548,6 @@ def run_session(zip_path, work, out_path):
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
     return results
-
-
-def display_points(bpy, obj):
-    """Points of the evaluated point cloud that shows the clip in Solid mode (None: no API to look)."""
-    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    if not hasattr(bpy.types, "GeometrySet"):
-        return None
-    geometry = bpy.types.GeometrySet.from_evaluated_object(ev)  # keep it alive while reading
-    cloud = geometry.pointcloud
-    return len(cloud.points) if cloud is not None else 0
 
 
 def _vec(values):

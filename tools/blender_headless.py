@@ -156,7 +156,12 @@ def source_frames(path, indices, width, height) -> dict:
 
 def exit_session(status: int = 0) -> None:
     """End a session's process without bpy's teardown (slow; bpy 4.2 segfaults at exit once a render
-    engine is registered, 4.5 can hang)."""
+    engine is registered, 4.5 can hang), removing the session's temporary folder as Blender's exit would
+    (frame caches of unsaved files are there)."""
+    bpy = sys.modules.get("bpy")
+    if bpy is not None and bpy.app.tempdir:
+        import shutil
+        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)

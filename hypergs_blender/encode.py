@@ -144,15 +144,21 @@ class EncodeSettings:
 @dataclass(frozen=True)
 class EncodeCost:
     """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
-    (Blender's dialogs). Measured on the 2-core development machine as CPU seconds (wall seconds there
-    were up to 2x more: two trainings ran beside), 1920 x 1080 at Standard (57,600 Gaussians): the
-    network (onnxruntime) 0.79 s per frame on one thread, 0.93 CPU s on two; decoding 0.04 s; writing
-    the frame cache 0.025 s; the floor 0.043 s. Recalibrate when an encoder changes
-    (`tools/long_clips.py` prints the estimate beside the measured conversion)."""
+    (Blender's dialogs): the wall time on an otherwise idle machine. Measured on the 2-core development
+    machine as CPU seconds (two trainings ran beside: wall seconds were 1.5-3x more), 1920 x 1080 at
+    Standard (57,600 Gaussians): the network (onnxruntime) 0.79 s per frame on one thread, 0.93 CPU s
+    on two; decoding 0.04 s; writing the frame cache 0.025 s; the floor 0.043 s. A whole conversion in
+    Blender took 1.15 CPU s per frame on two threads (300 frames): what these leave out (the frames'
+    handling between decoder and network) is in decode_s_per_pixel, which puts the estimate, 0.58 s per
+    frame on two threads, between two readings of that CPU time as an idle machine's wall time: 0.46 s
+    scaled as the command line's (the issue's 0.6 s per frame on an idle machine took 1.49 CPU s per
+    frame here, 30 frames with torch, start-up included) and 0.69 s with the network's part halved.
+    Recalibrate when an encoder changes (`tools/long_clips.py` prints the estimate beside the measured
+    conversion, in wall and CPU seconds)."""
     predict_s_per_gaussian: float  # the encoder's forward pass (with the resize to its working size), one thread
     cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
     threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
-    decode_s_per_pixel: float = 2e-8  # decoding the source frame (PyAV)
+    decode_s_per_pixel: float = 4e-8  # decoding the source frame (PyAV) and handing it to the encoder
     write_s_per_gaussian: float = 4.4e-7  # writing the frame cache
     refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
     refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)

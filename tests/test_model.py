@@ -112,17 +112,35 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
     return model.eval()
 
 
-def test_conv_model_starts_at_the_grid_floor():
+@pytest.mark.parametrize("preset", ["conv", "conv-cell"])
+def test_conv_model_starts_at_the_grid_floor(preset):
     frames = np.random.default_rng(0).random((2, 24, 40, 3), dtype=np.float32)
     with torch.no_grad():
-        out = ConvGS(ConvConfig()).eval()(torch.from_numpy(frames)).numpy()
+        out = ConvGS(PRESETS[preset]).eval()(torch.from_numpy(frames)).numpy()
     np.testing.assert_allclose(out, FloorEncoder().predict(frames), atol=1e-5)
 
 
-@pytest.mark.parametrize("blocks", [(2,), (1, 1, 1)])
-def test_conv_reach_bounds_the_receptive_field(blocks):
+def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
+    """The cell stem is one 3x3 conv over cells: a cell's stem feature depends on its own pixels and
+    its 8 neighbours' (a pixel two cells away changes nothing); the 'pixel' stem's reaches 2 pixels
+    past the cell."""
+    for stem_level, inside, outside in (("cell", 4 + 3, 4 + 4), ("pixel", 4 + 1, 4 + 2)):
+        model = random_conv(ConvConfig(width=8, stem=4, stem_level=stem_level))
+        x = torch.rand(1, 3, 24, 24)
+        with torch.no_grad():
+            base = model.cell_features(x)[0, :, 2, 2]  # the cell of pixels 8..11
+            for column, changes in ((8 + inside, True), (8 + outside, False)):
+                poked = x.clone()
+                poked[..., column] += 1
+                moved = (model.cell_features(poked)[0, :, 2, 2] - base).abs().max() > 1e-6
+                assert bool(moved) == changes, (stem_level, column)
+
+
+@pytest.mark.parametrize("blocks,stem_level", [((2,), "pixel"), ((1, 1, 1), "pixel"), ((2,), "cell"),
+                                               ((1, 1, 1), "cell")])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -139,11 +157,11 @@ def test_conv_reach_bounds_the_receptive_field(blocks):
     assert (out_near - base).abs().max() > 1e-6
 
 
-@pytest.mark.parametrize("blocks", [(4,), (1, 1, 1)])
-def test_tiles_give_exactly_one_pass(blocks, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level", [((4,), "pixel"), ((1, 1, 1), "pixel"), ((4,), "cell")])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
     import hypergs_blender.network as network
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     encoder = torch_encoder(model)
     width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
@@ -157,10 +175,11 @@ def test_tiles_give_exactly_one_pass(blocks, monkeypatch):
     np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
 
 
-def test_onnx_matches_torch(tmp_path):
+@pytest.mark.parametrize("stem_level", ["pixel", "cell"])
+def test_onnx_matches_torch(tmp_path, stem_level):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,)))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)

@@ -117,3 +117,44 @@ def test_evaluator_encodes_as_the_runtime_does(tmp_path):
         layout = frames_layout(frames, FloorEncoder(), cell=cell)
         floor = render_params(encode_frames(frames, FloorEncoder(), layout), 256, 256, 256, 256)
         assert results[f"val_n{n}"] == pytest.approx(float(np.mean(psnr(floor, frames / 255))), abs=0.01)
+
+
+def test_warm_start_takes_what_fits_and_keeps_new_parts_at_initialisation(tmp_path, capsys):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    with torch.no_grad():
+        for p in teacher.parameters():
+            p.normal_()
+    save_weights(teacher, tmp_path, "teacher")
+    student = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,), stem_level="cell"))
+    fresh = {k: v.clone() for k, v in student.state_dict().items()}
+    train.warm_start(student, tmp_path / "teacher.safetensors")
+    assert "kept at initialisation: stem.1.bias, stem.1.weight, to_cell.weight" in capsys.readouterr().out
+    for k, v in student.state_dict().items():
+        expected = fresh[k] if k.startswith(train.STEM_MODULES) and k != "to_cell.bias" else teacher.state_dict()[k]
+        torch.testing.assert_close(v, expected, rtol=0, atol=0, msg=k)
+
+
+def test_distill_stem_trains_only_the_stem_towards_the_teachers_features(tmp_path, monkeypatch):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    with torch.no_grad():
+        teacher.head.weight.normal_(0, 0.05)
+    save_weights(teacher, tmp_path, "teacher")
+    monkeypatch.setitem(train.PRESETS, "conv-cell", ConvConfig(width=8, stem=16, blocks=(1,), stem_level="cell"))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    args = training_args(tmp_path / "run", 30, "conv-cell")
+    args.init_from, args.distill_stem, args.lr = tmp_path / "teacher.safetensors", True, 1e-2
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
+    for k, v in teacher.state_dict().items():
+        if not k.startswith(train.STEM_MODULES):
+            torch.testing.assert_close(state[k], v, rtol=0, atol=0, msg=k)  # frozen
+    records = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    unexplained = [r["unexplained"] for r in records if "unexplained" in r]
+    assert len(unexplained) == 30 and np.mean(unexplained[-5:]) < 0.7 * np.mean(unexplained[:5])
+    with pytest.raises(Exception, match="--distill-stem needs --init-from"):
+        args.init_from = None
+        train.run(args)

@@ -19,7 +19,11 @@ def add_commands(subparsers) -> None:
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
-                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's")
+                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
+                        "the tensors whose name and shape the network has (new parts keep their initialisation)")
+    p.add_argument("--distill-stem", action="store_true",
+                   help="train only the stem, to reproduce the cell features of the --init-from network (which "
+                        "needs its .json beside it), e.g. to move a trained network onto another stem")
     p.add_argument("--data", default=DEFAULT_SPEC, type=options.text, help="training.data.build_sources spec")
     p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
     p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,

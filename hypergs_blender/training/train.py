@@ -29,6 +29,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
+from ..errors import HyperGSError
 from ..io.frames import read_frames
 from ..io.images import resize_exact
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
@@ -109,8 +110,43 @@ def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[tor
     return mse + reg_loss, mse, stats
 
 
+def warm_start(model, path, rank: int = 0) -> None:
+    """Copy the weights of `path` (.safetensors) whose name and shape the model has: the same design
+    continues, and a new part (another stem, a new branch) keeps its initialisation (new branches
+    start at zero, so the warm-started network starts as the one it came from). Names what was left."""
+    from safetensors.torch import load_file
+    weights = load_file(str(path))
+    own = model.state_dict()
+    taken = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
+    model.load_state_dict(taken, strict=False)
+    left = sorted(set(own) - set(taken))
+    if rank == 0 and left:
+        print(f"warm start from {path}: {len(taken)} tensors; kept at initialisation: {', '.join(left)}", flush=True)
+
+
+STEM_MODULES = ("stem.", "to_cell.")  # what --distill-stem trains
+
+
+def stem_distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, stats): the stem's cell features against the teacher's on one batch of frames, the
+    mean squared difference over the teacher's feature variance (the fraction not reproduced); `mse`
+    is the student network's render MSE, for the log."""
+    size = frames.shape[2]
+    frames = frames.reshape(-1, size, size, 3)
+    x = (frames.permute(0, 3, 1, 2) - 0.5) * 2
+    with torch.no_grad():
+        target = teacher.cell_features(x)
+    student = getattr(model, "module", model)
+    loss = torch.mean((student.cell_features(x) - target) ** 2) / target.var()
+    with torch.no_grad():
+        mse = torch.mean((render_torch(student(frames).float(), size, size, size, size) - frames) ** 2)
+    return loss, mse, {"unexplained": round(float(loss.detach()), 5)}
+
+
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
+    if args.distill_stem and not args.init_from:
+        raise HyperGSError("--distill-stem needs --init-from: the network whose cell features the stem learns")
     distributed = "RANK" in os.environ
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -134,12 +170,19 @@ def run(args) -> None:
     torch.manual_seed(args.seed)
     model = build_model(config).to(device)
     conv = isinstance(model, ConvGS)
-    if not resume and args.init_from and conv:  # warm start from exported weights of the same design
-        from safetensors.torch import load_file
-        model.load_state_dict(load_file(str(args.init_from)))
+    teacher = None
+    if conv and args.init_from:
+        if not resume:
+            warm_start(model, args.init_from, rank)
+        if args.distill_stem:  # the warm start's network teaches the stem; everything else stays as it gave it
+            from ..network import load_model
+            teacher = load_model(Path(args.init_from).parent, Path(args.init_from).stem).to(device)
+            for name, parameter in model.named_parameters():
+                parameter.requires_grad_(name.startswith(STEM_MODULES))
     regularizer = None if conv else AdaptiveRegularizer().to(device)
     if conv:
-        optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
+        trainable = [p for p in model.parameters() if p.requires_grad]
+        optimizer = torch.optim.AdamW(trainable, lr=args.lr, weight_decay=1e-4)
     else:
         optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
     step, wall, cpu = 0, 0.0, 0.0
@@ -185,10 +228,14 @@ def run(args) -> None:
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
             with amp:
-                loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+                if teacher is None:
+                    loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+                else:
+                    loss, mse, stats = stem_distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip))
+            grad_norm = float(torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad],
+                                                             args.clip))
             optimizer.step()
             step += 1
             wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started

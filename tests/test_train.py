@@ -158,3 +158,28 @@ def test_distill_stem_trains_only_the_stem_towards_the_teachers_features(tmp_pat
     with pytest.raises(Exception, match="--distill-stem needs --init-from"):
         args.init_from = None
         train.run(args)
+
+
+def test_input_noise_is_reproducible_bounded_and_eight_bit():
+    frames = torch.full((4, 1, 16, 16, 3), 0.5)
+    a, b = train.with_noise(frames, 2.0, 7, 3, 0), train.with_noise(frames, 2.0, 7, 3, 0)
+    torch.testing.assert_close(a, b, rtol=0, atol=0)  # a pure function of (seed, step, rank): resume is exact
+    assert not torch.equal(a, train.with_noise(frames, 2.0, 7, 4, 0))
+    codes = a * 255
+    torch.testing.assert_close(codes, codes.round(), rtol=0, atol=1e-4)
+    stds = (a - 0.5).reshape(4, -1).std(1) * 255
+    assert float(stds.max()) < 2.0 * 1.25 and float(stds.max()) > 0.3
+
+
+def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
+    from hypergs_blender.commands.cli import main
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    argv = ["train", "--out", str(tmp_path / "run"), "--data", "procedural:1", "--steps", "1", "--batch", "1",
+            "--size", "32", "--warmup", "1"]
+    with pytest.raises(SystemExit):
+        main(argv + ["--config", "wrap=1.5"])
+    assert "wrap not fields of the conv preset" in capsys.readouterr().err
+    main(argv + ["--config", "warp=1.5", "stem_level=cell"])
+    config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
+    assert config["warp"] == 1.5 and config["stem_level"] == "cell" and config["width"] == 8

@@ -18,6 +18,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--preset", default="conv", choices=sorted(PRESETS),
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
+    p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=_config_item,
+                   help="override fields of the preset's config for a new run, e.g. warp=1.5 stem=128")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
                    help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
                         "the tensors whose name and shape the network has (new parts keep their initialisation)")
@@ -43,6 +45,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--gaussians", default="64:1024", type=options.gaussian_range,
                    help="transformer: N per frame, log-uniform in MIN:MAX per step (conv: one per 4x4 pixels)")
     p.add_argument("--seed", type=options.non_negative_int, default=0)
+    p.add_argument("--input-noise", type=options.non_negative_float, default=0.0,
+                   help="conv: the network sees each frame with Gaussian noise of a std up to this (1/255), "
+                        "quantised to 8 bits; the render is compared with the clean frame")
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)
@@ -63,8 +68,30 @@ def add_commands(subparsers) -> None:
     p.set_defaults(func=_export_onnx_command)
 
 
+def _config_item(text: str) -> tuple[str, object]:
+    """FIELD=VALUE, the value a JSON number, list or string (as cards store configs)."""
+    import argparse
+    import json
+    field, sep, value = text.partition("=")
+    if not sep or not field:
+        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
+    try:
+        return field, json.loads(value)
+    except ValueError:
+        return field, value
+
+
 def _train_command(args) -> None:
+    from dataclasses import fields
+
+    from ..errors import HyperGSError
     from ..training.train import run
+    known = {f.name for f in fields(PRESETS[args.preset])}
+    unknown = sorted({field for field, _ in args.config} - known)
+    if unknown:
+        raise HyperGSError(f"--config: {', '.join(unknown)} not fields of the {args.preset} preset "
+                           f"({', '.join(sorted(known))})")
+    args.config = dict(args.config)
     run(args)
 
 

@@ -94,12 +94,14 @@ class Prefetcher:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
-def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]."""
+def training_loss(model, frames: torch.Tensor, n: int, regularizer, inputs: torch.Tensor | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]. inputs: what the (conv) network
+    sees instead of the frames, e.g. the frames with noise (the render is compared with the frames)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
-        params = model(frames).float()
+        params = model(frames if inputs is None else inputs.reshape(b * t, size, size, 3)).float()
     else:
         anchors, cell = anchor_inputs(n, frames.device)
         params = model(frames, anchors, cell).float()
@@ -125,6 +127,17 @@ def warm_start(model, path, rank: int = 0) -> None:
 
 
 STEM_MODULES = ("stem.", "to_cell.")  # what --distill-stem trains
+
+
+def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank: int) -> torch.Tensor:
+    """The frames plus Gaussian noise of a standard deviation drawn per frame, uniformly in [0, max_std]
+    (in 1/255), quantised to 8 bits like a video frame: what the network sees when it learns that
+    a flat region with a camera's noise in it is still flat. A pure function of (seed, step, rank)."""
+    rng = np.random.default_rng([int(seed), int(step), int(rank), 4099])
+    shape = frames.shape
+    std = rng.uniform(0, max_std / 255, (shape[0],) + (1,) * (len(shape) - 1)).astype(np.float32)
+    noise = torch.from_numpy(rng.standard_normal(shape, dtype=np.float32) * std).to(frames.device)
+    return (torch.round((frames + noise).clamp(0, 1) * 255) / 255).to(frames.dtype)
 
 
 def stem_distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -164,6 +177,8 @@ def run(args) -> None:
     config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])
     if not resume and args.parametrization:
         config["parametrization"] = args.parametrization
+    if not resume:
+        config.update(args.config or {})
     for key, value in ARCH_DEFAULTS[config["arch"]].items():
         if getattr(args, key) is None:
             setattr(args, key, value)
@@ -229,7 +244,8 @@ def run(args) -> None:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
             with amp:
                 if teacher is None:
-                    loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+                    inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
+                    loss, mse, stats = training_loss(train_model, frames, n, regularizer, inputs)
                 else:
                     loss, mse, stats = stem_distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)

@@ -92,6 +92,7 @@ class ConvConfig:
     stem_level: str = "pixel"  # where the stem's convs run: "pixel" (full resolution) or "cell"
     width: int = 64  # channels at cell resolution
     blocks: tuple = (4,)  # residual blocks at the cell level, then at each coarser level (x2)
+    mid: int = 0  # channels between a residual block's two convs at the cell level (0: width)
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
@@ -300,12 +301,14 @@ class HyperGS(nn.Module):
 
 
 class ResBlock(nn.Module):
-    """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity)."""
+    """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity);
+    `mid` channels between the two convs (default: as many as outside)."""
 
-    def __init__(self, channels: int):
+    def __init__(self, channels: int, mid: int = 0):
         super().__init__()
-        self.a = nn.Conv2d(channels, channels, 3, padding=1)
-        self.b = nn.Conv2d(channels, channels, 3, padding=1)
+        mid = mid or channels
+        self.a = nn.Conv2d(channels, mid, 3, padding=1)
+        self.b = nn.Conv2d(mid, channels, 3, padding=1)
         nn.init.zeros_(self.b.weight)
         nn.init.zeros_(self.b.bias)
 
@@ -329,10 +332,12 @@ class ConvGS(nn.Module):
             raise ValueError(f"unknown stem level {cfg.stem_level!r} (pixel or cell)")
         self.cell_pixels = nn.Conv2d(3 * s * s, c, 1)  # the cell's own pixels, linearly
         widths = [c * cfg.widen ** level for level in range(len(cfg.blocks))]
+        mids = [(cfg.mid or c) * cfg.widen ** level for level in range(len(cfg.blocks))]
         self.down = nn.ModuleList(nn.Conv2d(a, b, 2, stride=2) for a, b in zip(widths, widths[1:]))
-        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w) for _ in range(n))) for w, n in zip(widths, cfg.blocks))
+        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w, m) for _ in range(n)))
+                                     for w, m, n in zip(widths, mids, cfg.blocks))
         self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
-        self.decoder = nn.ModuleList(ResBlock(w) for w in widths[:-1])
+        self.decoder = nn.ModuleList(ResBlock(w, m) for w, m in zip(widths[:-1], mids))
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor
         nn.init.zeros_(self.head.bias)

@@ -132,30 +132,52 @@ def test_warm_start_takes_what_fits_and_keeps_new_parts_at_initialisation(tmp_pa
     train.warm_start(student, tmp_path / "teacher.safetensors")
     assert "kept at initialisation: stem.1.bias, stem.1.weight, to_cell.weight" in capsys.readouterr().out
     for k, v in student.state_dict().items():
-        expected = fresh[k] if k.startswith(train.STEM_MODULES) and k != "to_cell.bias" else teacher.state_dict()[k]
+        expected = fresh[k] if k.startswith(("stem.", "to_cell.")) and k != "to_cell.bias" else teacher.state_dict()[k]
         torch.testing.assert_close(v, expected, rtol=0, atol=0, msg=k)
 
 
-def test_distill_stem_trains_only_the_stem_towards_the_teachers_features(tmp_path, monkeypatch):
+def test_warm_start_prunes_the_least_important_middle_channels(tmp_path, capsys):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    block = teacher.encoder[0][0]
+    with torch.no_grad():
+        block.b.weight.normal_()
+        block.a.weight[[1, 4, 6]] *= 10  # the three middle channels that matter most
+    save_weights(teacher, tmp_path, "teacher")
+    student = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,), mid=3))
+    train.warm_start(student, tmp_path / "teacher.safetensors")
+    assert "kept at initialisation" not in capsys.readouterr().out  # every tensor came from the teacher
+    pruned = student.encoder[0][0]
+    torch.testing.assert_close(pruned.a.weight, block.a.weight[[1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.a.bias, block.a.bias[[1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.b.weight, block.b.weight[:, [1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.b.bias, block.b.bias, rtol=0, atol=0)
+
+
+def test_distill_trains_all_but_the_head_towards_the_teachers_features(tmp_path, monkeypatch):
     from hypergs_blender.training.export import save_weights
     torch.manual_seed(0)
     teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
     with torch.no_grad():
         teacher.head.weight.normal_(0, 0.05)
+        teacher.encoder[0][0].b.weight.normal_(0, 0.05)
     save_weights(teacher, tmp_path, "teacher")
     monkeypatch.setitem(train.PRESETS, "conv-cell", ConvConfig(width=8, stem=16, blocks=(1,), stem_level="cell"))
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     args = training_args(tmp_path / "run", 30, "conv-cell")
-    args.init_from, args.distill_stem, args.lr = tmp_path / "teacher.safetensors", True, 1e-2
+    args.init_from = args.distill = tmp_path / "teacher.safetensors"
+    args.lr = 1e-2
     train.run(args)
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
-    for k, v in teacher.state_dict().items():
-        if not k.startswith(train.STEM_MODULES):
-            torch.testing.assert_close(state[k], v, rtol=0, atol=0, msg=k)  # frozen
+    own = teacher.state_dict()
+    for k, v in state.items():
+        same = k in own and own[k].shape == v.shape and torch.equal(own[k], v)
+        assert same == k.startswith("head."), k  # the head is kept; the rest learns
     records = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     unexplained = [r["unexplained"] for r in records if "unexplained" in r]
     assert len(unexplained) == 30 and np.mean(unexplained[-5:]) < 0.7 * np.mean(unexplained[:5])
-    with pytest.raises(Exception, match="--distill-stem needs --init-from"):
+    with pytest.raises(Exception, match="--distill needs --init-from"):
         args.init_from = None
         train.run(args)
 

@@ -23,9 +23,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
                    help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
                         "the tensors whose name and shape the network has (new parts keep their initialisation)")
-    p.add_argument("--distill-stem", action="store_true",
-                   help="train only the stem, to reproduce the cell features of the --init-from network (which "
-                        "needs its .json beside it), e.g. to move a trained network onto another stem")
+    p.add_argument("--distill", default=None, type=options.InputFile((".safetensors",)),
+                   help="train the network (all but its head, kept as --init-from gave it) to reproduce the cell "
+                        "features of these weights (.safetensors with its .json beside it), e.g. to move a trained "
+                        "network onto a cheaper stem or thinner blocks; then train it on the renders")
     p.add_argument("--data", default=DEFAULT_SPEC, type=options.text, help="training.data.build_sources spec")
     p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
     p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,

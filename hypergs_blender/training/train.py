@@ -115,18 +115,26 @@ def training_loss(model, frames: torch.Tensor, n: int, regularizer, inputs: torc
 def warm_start(model, path, rank: int = 0) -> None:
     """Copy the weights of `path` (.safetensors) whose name and shape the model has: the same design
     continues, and a new part (another stem, a new branch) keeps its initialisation (new branches
-    start at zero, so the warm-started network starts as the one it came from). Names what was left."""
+    start at zero, so the warm-started network starts as the one it came from). A residual block with
+    fewer middle channels than in `path` takes the most important of them (|conv a's filter| x |conv
+    b's weights from it|): structured pruning, which --distill then repairs. Names what was left."""
     from safetensors.torch import load_file
     weights = load_file(str(path))
     own = model.state_dict()
+    for key in [k for k in own if k.endswith(".a.weight") and k in weights]:
+        block = key[:-len("a.weight")]
+        a, b = weights[key], weights[block + "b.weight"]
+        keep = own[key].shape[0]
+        if a.shape[0] > keep and a.shape[1:] == own[key].shape[1:]:
+            importance = a.flatten(1).norm(dim=1) * b.transpose(0, 1).flatten(1).norm(dim=1)
+            chosen = importance.topk(keep).indices.sort().values
+            weights[key], weights[block + "a.bias"] = a[chosen], weights[block + "a.bias"][chosen]
+            weights[block + "b.weight"] = b[:, chosen]
     taken = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
     model.load_state_dict(taken, strict=False)
     left = sorted(set(own) - set(taken))
     if rank == 0 and left:
         print(f"warm start from {path}: {len(taken)} tensors; kept at initialisation: {', '.join(left)}", flush=True)
-
-
-STEM_MODULES = ("stem.", "to_cell.")  # what --distill-stem trains
 
 
 def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank: int) -> torch.Tensor:
@@ -140,17 +148,17 @@ def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank:
     return (torch.round((frames + noise).clamp(0, 1) * 255) / 255).to(frames.dtype)
 
 
-def stem_distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(loss, mse, stats): the stem's cell features against the teacher's on one batch of frames, the
-    mean squared difference over the teacher's feature variance (the fraction not reproduced); `mse`
-    is the student network's render MSE, for the log."""
+def distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, stats): the network's cell features (its head's input) against the teacher's on one
+    batch of frames, the mean squared difference over the teacher's feature variance (the fraction not
+    reproduced); `mse` is the network's render MSE, for the log."""
     size = frames.shape[2]
     frames = frames.reshape(-1, size, size, 3)
     x = (frames.permute(0, 3, 1, 2) - 0.5) * 2
     with torch.no_grad():
-        target = teacher.cell_features(x)
+        target = teacher.features(x)
     student = getattr(model, "module", model)
-    loss = torch.mean((student.cell_features(x) - target) ** 2) / target.var()
+    loss = torch.mean((student.features(x) - target) ** 2) / target.var()
     with torch.no_grad():
         mse = torch.mean((render_torch(student(frames).float(), size, size, size, size) - frames) ** 2)
     return loss, mse, {"unexplained": round(float(loss.detach()), 5)}
@@ -158,8 +166,8 @@ def stem_distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.
 
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
-    if args.distill_stem and not args.init_from:
-        raise HyperGSError("--distill-stem needs --init-from: the network whose cell features the stem learns")
+    if args.distill and not args.init_from:
+        raise HyperGSError("--distill needs --init-from: a warm start whose head reads the teacher's features")
     distributed = "RANK" in os.environ
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -189,11 +197,11 @@ def run(args) -> None:
     if conv and args.init_from:
         if not resume:
             warm_start(model, args.init_from, rank)
-        if args.distill_stem:  # the warm start's network teaches the stem; everything else stays as it gave it
+        if args.distill:  # the teacher's features, read by the warm start's head, kept as it came
             from ..network import load_model
-            teacher = load_model(Path(args.init_from).parent, Path(args.init_from).stem).to(device)
+            teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
             for name, parameter in model.named_parameters():
-                parameter.requires_grad_(name.startswith(STEM_MODULES))
+                parameter.requires_grad_(not name.startswith("head."))
     regularizer = None if conv else AdaptiveRegularizer().to(device)
     if conv:
         trainable = [p for p in model.parameters() if p.requires_grad]
@@ -247,7 +255,7 @@ def run(args) -> None:
                     inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
                     loss, mse, stats = training_loss(train_model, frames, n, regularizer, inputs)
                 else:
-                    loss, mse, stats = stem_distillation_loss(train_model, teacher, frames)
+                    loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = float(torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad],

@@ -201,7 +201,10 @@ def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
             "--size", "32", "--warmup", "1"]
     with pytest.raises(SystemExit):
         main(argv + ["--config", "wrap=1.5"])
-    assert "wrap not fields of the conv preset" in capsys.readouterr().err
+    assert "'wrap' is not a network config field" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(argv + ["--config", "heads=4"])  # a transformer's field
+    assert "heads not fields of the conv preset's config" in capsys.readouterr().err
     main(argv + ["--config", "warp=1.5", "stem_level=cell"])
     config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
     assert config["warp"] == 1.5 and config["stem_level"] == "cell" and config["width"] == 8

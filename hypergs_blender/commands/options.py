@@ -10,6 +10,7 @@ checks this for every subcommand and passes each type's `refused` examples to it
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
@@ -91,6 +92,28 @@ class Text(ArgType):
         if not text.strip():
             raise argparse.ArgumentTypeError("must not be empty")
         return text
+
+
+class ConfigItem(ArgType):
+    """FIELD=VALUE: a field of a network config (model.py's dataclasses) and its value, read as JSON (a
+    number, a list) or else as text."""
+
+    refused = ("", "warp", "=1", "no_such_field=1")
+
+    def __call__(self, text: str) -> tuple[str, object]:
+        from dataclasses import fields
+
+        from ..model import ConvConfig, TransformerConfig
+        field, sep, value = text.partition("=")
+        if not sep or not field or not value:
+            raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
+        known = {f.name for cls in (ConvConfig, TransformerConfig) for f in fields(cls)} - {"arch"}
+        if field not in known:
+            raise argparse.ArgumentTypeError(f"{field!r} is not a network config field ({', '.join(sorted(known))})")
+        try:
+            return field, json.loads(value)
+        except ValueError:
+            return field, value
 
 
 class Name(ArgType):
@@ -246,6 +269,7 @@ positive_float = Real(0.0)
 non_negative_float = Real(0.0, inclusive=True)
 fraction = Real(0.0, inclusive=True, high=1.0)
 text = Text()
+config_item = ConfigItem()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()

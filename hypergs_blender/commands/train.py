@@ -18,7 +18,7 @@ def add_commands(subparsers) -> None:
     p.add_argument("--preset", default="conv", choices=sorted(PRESETS),
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
-    p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=_config_item,
+    p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=options.config_item,
                    help="override fields of the preset's config for a new run, e.g. warp=1.5 stem=128")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
                    help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
@@ -69,19 +69,6 @@ def add_commands(subparsers) -> None:
     p.set_defaults(func=_export_onnx_command)
 
 
-def _config_item(text: str) -> tuple[str, object]:
-    """FIELD=VALUE, the value a JSON number, list or string (as cards store configs)."""
-    import argparse
-    import json
-    field, sep, value = text.partition("=")
-    if not sep or not field:
-        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
-    try:
-        return field, json.loads(value)
-    except ValueError:
-        return field, value
-
-
 def _train_command(args) -> None:
     from dataclasses import fields
 
@@ -90,8 +77,7 @@ def _train_command(args) -> None:
     known = {f.name for f in fields(PRESETS[args.preset])}
     unknown = sorted({field for field, _ in args.config} - known)
     if unknown:
-        raise HyperGSError(f"--config: {', '.join(unknown)} not fields of the {args.preset} preset "
-                           f"({', '.join(sorted(known))})")
+        raise HyperGSError(f"--config: {', '.join(unknown)} not fields of the {args.preset} preset's config")
     args.config = dict(args.config)
     run(args)
 

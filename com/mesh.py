@@ -15,6 +15,12 @@ from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.gaussians import GaussianVideo
 from ..hypergs_blender.points import video_to_points
 
+
+def is_clip(obj) -> bool:
+    """Whether `obj` (an object, evaluated or not, or None) is a HyperGS clip."""
+    return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip
+
+
 # attribute -> (components wanted, {data_type: (foreach key, components stored)})
 _ATTRIBUTES = {
     "scale": (2, {"FLOAT2": ("vector", 2), "FLOAT_VECTOR": ("vector", 3)}),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..com import linked
-from ..com.mesh import linked_file, read_points
+from ..com.mesh import is_clip, linked_file, read_points
 from ..hypergs_blender.colour import srgb_image_to_linear_rgba
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.points import clip_frame_index, points_to_params
@@ -19,7 +19,7 @@ def evaluated_clips(depsgraph, visible=None, problems: list | None = None):
     scene = depsgraph.scene
     scene_frame = scene.frame_current + scene.frame_subframe
     for ob in depsgraph.objects:
-        if ob.type != "MESH" or not ob.hypergs.is_clip or (visible is not None and not visible(ob)):
+        if not is_clip(ob) or (visible is not None and not visible(ob)):
             continue
         s = ob.hypergs
         if s.linked:

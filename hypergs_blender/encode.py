@@ -1,8 +1,14 @@
-"""Video -> GaussianVideo. A frame of W x H pixels is encoded on a `Layout`: a cols x rows grid of cells,
-one Gaussian each, whose size (in source pixels) is the density a user chooses, by a Gaussian count
-(`--gaussians`) or a cell size (`--cell`). The encoder sees the frame resized to its working size, at
-which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
+"""Video -> GaussianVideo. What a user asks for is one `EncodeSettings`: a Quality preset (`QUALITY`), a
+Gaussian count or a cell size, and refine steps; the command line (`--quality`, `--gaussians`, `--cell`,
+`--refine`), Blender's dialogs and the encode all read it, and derive from it the `Layout` of a W x H
+frame (with the encoder's stride and granule): a cols x rows grid of cells, one Gaussian each, whose
+size (in source pixels) is the density chosen. The encoder sees the frame resized to its working size,
+at which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
 the W x H canvas (exact covariance, gaussians.stretch_params).
+
+`EncodePlan` is the one streaming encode of a video (decode -> encode -> refine, chunk by chunk, with
+progress, cancel and the PSNR of sampled frames) that `hypergs encode`, Blender's conversions and the
+benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, the benches).
 
 Encoders: the trained network through torch or onnxruntime (network.py), and the grid floor that every
 model must beat (`FloorEncoder`). Each has `name`, `stride` and `predict(working frames) -> params`.
@@ -11,15 +17,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
+from . import metrics, optional
 from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
+from .render import render_params
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
 
@@ -29,6 +37,7 @@ QUALITY = {  # cell size in source pixels and refine steps of each quality prese
     "standard": dict(cell=6.0, refine=0),
     "high": dict(cell=4.0, refine=30),
 }
+DEFAULT_QUALITY = "standard"
 
 
 @dataclass(frozen=True)
@@ -89,6 +98,46 @@ def plan_layout(width: int, height: int, stride: int, gaussians: int | None = No
         note = (f"{asked} on {width}x{height} is outside the trained range ({limit}): "
                 f"using {cols * rows} ({cols}x{rows} cells of {math.sqrt(width * height / (cols * rows)):.1f} px)")
     return Layout(width, height, cols, rows, stride, note)
+
+
+@dataclass(frozen=True)
+class EncodeSettings:
+    """What a user asks of an encode: about `gaussians` per frame or cells of `cell` source pixels (one
+    of the two), and `refine` steps after the network. `choose` reads a user's choice; `layout` is
+    where the Gaussians of a frame go."""
+    gaussians: int | None = None
+    cell: float | None = None
+    refine: int = 0
+    note: str = ""  # why the settings differ from what was asked (refining needs PyTorch)
+
+    @classmethod
+    def choose(cls, quality: str | None = None, gaussians: int | None = None, cell: float | None = None,
+               refine: int | None = None, default: str = DEFAULT_QUALITY) -> EncodeSettings:
+        """The one reading of a user's choice: a Quality preset (a key of QUALITY: its cell size and
+        refine steps), else a Gaussian count, else a cell size (a count wins over a cell size), else the
+        `default` preset. `refine`, when given, replaces the preset's steps (else 0 for a count or a cell)."""
+        if quality is None and gaussians is None and cell is None:
+            quality = default
+        if quality is not None:
+            if quality not in QUALITY:
+                raise HyperGSError(f"unknown quality {quality!r} ({', '.join(QUALITY)})")
+            preset = QUALITY[quality]
+            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine)
+        if gaussians is not None:
+            return cls(gaussians=gaussians, refine=refine or 0)
+        return cls(cell=cell, refine=refine or 0)
+
+    def runnable(self) -> EncodeSettings:
+        """These settings as this Python can run them: refining needs PyTorch (Blender's Python has
+        none), so without it there is no refining, and `note` says so."""
+        if self.refine and not optional.torch_available():
+            return replace(self, refine=0, note=f"not refined: refining needs PyTorch, which this Blender's "
+                                                f"Python lacks ({self.refine} steps asked)")
+        return self
+
+    def layout(self, width: int, height: int, encoder) -> Layout:
+        """The layout of a width x height frame for `encoder` (its stride and granule)."""
+        return plan_layout(width, height, encoder.stride, self.gaussians, self.cell, encoder.granule)
 
 
 @dataclass(frozen=True)
@@ -156,53 +205,70 @@ class FloorEncoder:
         return out.reshape(b, rows * cols, 8)
 
 
-def encode_frames(frames: np.ndarray, encoder, layout: Layout) -> np.ndarray:
-    """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas."""
+def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
+    """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
+    steps against the frames (refine.refine_params, needs torch) when asked."""
     work = np.stack([resize_exact(f, layout.work_width, layout.work_height) for f in frames])
     params = encoder.predict(work.astype(np.float32) / 255)
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
-    return stretch_params(params, tx, ty) if (tx, ty) != (1, 1) else params
+    if (tx, ty) != (1, 1):
+        params = stretch_params(params, tx, ty)
+    if refine:
+        from .refine import refine_params
+        params = refine_params(params, frames, refine)
+    return params
 
 
 def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None) -> Layout:
-    """plan_layout for frames [T, H, W, 3] and an encoder."""
-    return plan_layout(frames.shape[2], frames.shape[1], encoder.stride, gaussians, cell, encoder.granule)
+    """The layout of frames [T, H, W, 3] for `gaussians` per frame or cells of `cell` pixels."""
+    return EncodeSettings(gaussians, cell).layout(frames.shape[2], frames.shape[1], encoder)
 
 
 class EncodePlan:
-    """What encoding a video will produce, known before any frame is decoded: the frames to take,
-    the layout, the frame rate and the source description."""
+    """The encode of a video with `settings`, known before any frame is decoded (the frames to take,
+    the layout, the frame rate and the source description), then run chunk by chunk (`chunks`, or
+    `video` for the whole clip in memory)."""
 
-    def __init__(self, path, encoder, gaussians: int | None = None, cell: float | None = None,
-                 size: int | None = None, start: int = 0, stop: int | None = None, num_frames: int | None = None):
+    def __init__(self, path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
+                 stop: int | None = None, num_frames: int | None = None):
         info = probe(path)
-        self.path, self.encoder, self.size = path, encoder, size
+        self.path, self.encoder, self.settings, self.size = path, encoder, settings, size
         self.indices = sample_indices(info.num_frames, num_frames, start, stop)
         self.height, self.width = (size, size) if size else (info.height, info.width)
-        self.layout = plan_layout(self.width, self.height, encoder.stride, gaussians, cell, encoder.granule)
+        self.layout = settings.layout(self.width, self.height, encoder)
         idx = self.indices
         self.fps = info.fps * (len(idx) - 1) / max(1, idx[-1] - idx[0]) if len(idx) > 1 else info.fps
         self.source = dict(path=str(path), frames=idx, size=[info.width, info.height], encoder=encoder.name)
+        self.psnr_values: list[float] = []  # of the frames `chunks` measured
 
     @property
     def grid(self) -> tuple[int, int]:
         return self.layout.cols, self.layout.rows
 
-    def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0):
+    @property
+    def psnr(self) -> float:
+        """Mean PSNR (dB) of the frames measured, rendered at the canvas size against the source."""
+        return float(np.mean(self.psnr_values)) if self.psnr_values else math.nan
+
+    def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0):
         """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
-        encoded `chunk_frames` at a time, so memory does not grow with the video. `progress` may
-        return False to cancel (raises Cancelled)."""
+        encoded (and refined) `chunk_frames` at a time, so memory does not grow with the video.
+        `progress` may return False to cancel (raises Cancelled). `psnr_frames` frames, spread evenly,
+        are rendered and measured against their source frame on the way (`psnr`)."""
+        total = len(self.indices)
+        measured = set(np.round(np.linspace(0, total - 1, min(psnr_frames, total))).astype(int).tolist())
+        self.psnr_values = []
         done, buffer = 0, []
 
         def report():
-            if progress is not None and progress(done, len(self.indices)) is False:
+            if progress is not None and progress(done, total) is False:
                 raise Cancelled("encoding cancelled")
 
         def encode(frames):
-            params = encode_frames(frames, self.encoder, self.layout)
-            if refine:
-                from .refine import refine_params
-                params = refine_params(params, frames, refine)
+            params = encode_frames(frames, self.encoder, self.layout, self.settings.refine)
+            for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
+                image = render_params(params[i], self.width, self.height, self.width, self.height)
+                self.psnr_values.append(float(metrics.psnr(image[None], frames[i][None] / np.float32(255))[0]))
             return frames, params
 
         report()
@@ -218,15 +284,18 @@ class EncodePlan:
             done += len(buffer)
             report()
 
+    def video(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0) -> GaussianVideo:
+        """Every chunk's Gaussians as one GaussianVideo in memory (the source gains `encode_seconds`)."""
+        started = time.perf_counter()
+        params = np.concatenate([p for _, p in self.chunks(progress, chunk_frames, psnr_frames)])
+        return GaussianVideo(params, self.width, self.height, self.fps, self.grid,
+                             dict(self.source, encode_seconds=time.perf_counter() - started))
 
-def encode_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = None,
-                 start: int = 0, stop: int | None = None, num_frames: int | None = None,
-                 progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0) -> GaussianVideo:
+
+def encode_video(path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
+                 stop: int | None = None, num_frames: int | None = None, progress: Progress | None = None,
+                 chunk_frames: int = 16) -> GaussianVideo:
     """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
     one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
     short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
-    started = time.perf_counter()
-    plan = EncodePlan(path, encoder, gaussians, cell, size, start, stop, num_frames)
-    params = np.concatenate([p for _, p in plan.chunks(progress, chunk_frames, refine)])
-    return GaussianVideo(params, plan.width, plan.height, plan.fps, plan.grid,
-                         dict(plan.source, encode_seconds=time.perf_counter() - started))
+    return EncodePlan(path, encoder, settings, size, start, stop, num_frames).video(progress, chunk_frames)

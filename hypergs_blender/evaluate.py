@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from . import metrics
-from .encode import encode_frames, frames_layout
+from .encode import EncodeSettings, encode_frames, frames_layout
 from .io.frames import probe, read_frames
 from .render import render_params
 
@@ -44,12 +44,11 @@ def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None
     return source
 
 
-def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
-                    refine: int = 0) -> dict:
-    """Encode uint8 frames [T, H, W, 3], render them at H x W, and measure."""
+def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> dict:
+    """Encode uint8 frames [T, H, W, 3] with `settings`, render them at H x W, and measure."""
     t, h, w = source.shape[:3]
-    layout = frames_layout(source, encoder, gaussians, cell)
-    rendered, encode_seconds, decode_seconds = encode_render(source, encoder, layout, refine)
+    layout = settings.layout(w, h, encoder)
+    rendered, encode_seconds, decode_seconds = encode_render(source, encoder, layout, settings.refine)
     target = source / np.float32(255)
     xs, ys = encoder.tile_borders(layout.work_width, layout.work_height)
     sx, sy = w / layout.work_width, h / layout.work_height
@@ -59,48 +58,44 @@ def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, c
                  "flat_ripple": metrics.flat_ripple(rendered, target, window=round(2 * layout.cell)),
                  "edge_bias": metrics.edge_bias(rendered, target)}
     return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows],
-                cell=round(layout.cell, 3), note=layout.note, refine=refine, **metrics.summary(rendered, target),
+                cell=round(layout.cell, 3), note=layout.note, refine=settings.refine, **metrics.summary(rendered, target),
                 floor_bilinear_psnr=bilinear_floor_psnr(source, layout.count), **artefacts,
                 encode_seconds=encode_seconds, decode_seconds=decode_seconds,
                 encode_fps=t / encode_seconds, decode_fps=t / decode_seconds)
 
 
 def encode_render(source: np.ndarray, encoder, layout, refine: int = 0) -> tuple[np.ndarray, float, float]:
-    """Encode uint8 frames [T, H, W, 3] on `layout` and render them at H x W: (renders float32 [T, H, W, 3],
-    unclipped; encode seconds; render seconds)."""
+    """Encode uint8 frames [T, H, W, 3] on `layout` (refined `refine` steps) and render them at H x W:
+    (renders float32 [T, H, W, 3], unclipped; encode seconds; render seconds)."""
     h, w = source.shape[1:3]
     started = time.perf_counter()
-    params = encode_frames(source, encoder, layout)
-    if refine:
-        from .refine import refine_params
-        params = refine_params(params, source, refine)
+    params = encode_frames(source, encoder, layout, refine)
     encode_seconds = time.perf_counter() - started
     started = time.perf_counter()
     rendered = render_params(params, w, h, w, h)
     return rendered, encode_seconds, time.perf_counter() - started
 
 
-def evaluate_temporal(source: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
-                      refine: int = 0) -> dict:
+def evaluate_temporal(source: np.ndarray, encoder, settings: EncodeSettings) -> dict:
     """Temporal figures of consecutive uint8 frames [T, H, W, 3] (T >= 2): the PSNR of the frame
     differences (metrics.delta_psnr) next to the per-frame PSNR of the same frames, and the render's
     change where the source is still (metrics.still_change)."""
-    rendered, _, _ = encode_render(source, encoder, frames_layout(source, encoder, gaussians, cell), refine)
+    h, w = source.shape[1:3]
+    rendered, _, _ = encode_render(source, encoder, settings.layout(w, h, encoder), settings.refine)
     target = source / np.float32(255)
     return dict(frames=len(source), psnr=float(np.mean(metrics.psnr(rendered, target))),
                 delta_psnr=metrics.delta_psnr(rendered, target), still_change=metrics.still_change(rendered, target))
 
 
-def evaluate_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = 256,
-                   crop: int | None = None, frames: int = 8, refine: int = 0, temporal_frames: int = 8) -> dict:
+def evaluate_video(path, encoder, settings: EncodeSettings, size: int | None = 256, crop: int | None = None,
+                   frames: int = 8, temporal_frames: int = 8) -> dict:
     """evaluate_frames on `frames` frames spread over the video, and (temporal_frames >= 2)
     evaluate_temporal on that many consecutive frames from its middle."""
-    result = dict(video=str(path), **evaluate_frames(read_eval_frames(path, frames, size, crop), encoder, gaussians,
-                                                     cell, refine))
+    result = dict(video=str(path), **evaluate_frames(read_eval_frames(path, frames, size, crop), encoder, settings))
     if temporal_frames >= 2:
         run = read_eval_frames(path, temporal_frames, size, crop, consecutive=True)
         if len(run) >= 2:
-            result["temporal"] = evaluate_temporal(run, encoder, gaussians, cell, refine)
+            result["temporal"] = evaluate_temporal(run, encoder, settings)
     return result
 
 

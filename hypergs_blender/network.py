@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import optional
 from .errors import HyperGSError
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
@@ -152,7 +153,8 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         raise HyperGSError(f"unknown encoder backend {backend!r} ({', '.join(BACKENDS)})")
     directory = Path(weights or WEIGHTS_DIR)
     if backend == "auto":
-        backend = "torch" if _torch_importable() and (directory / f"{BUNDLED_NAME}.safetensors").is_file() else "onnx"
+        has_weights = (directory / f"{BUNDLED_NAME}.safetensors").is_file()
+        backend = "torch" if optional.torch_available() and has_weights else "onnx"
     try:
         if backend == "torch":
             import torch
@@ -168,10 +170,3 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         raise HyperGSError(f"the trained network could not be loaded with {backend} "
                            f"({type(e).__name__}: {e})") from e
 
-
-def _torch_importable() -> bool:
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        return False
-    return True

@@ -3,18 +3,20 @@ import a movie as Gaussians, render with F12, edit points, Geometry Nodes, save/
 (The Sequencer's conversion: test_blender_sequencer.py.)
 
 bpy can be imported once per process, so one Blender session runs in a subprocess (this file run as
-a script, with torch and numba made unimportable, as in Blender's own Python) and writes what it
-measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
+a script, with torch and numba made unimportable, as in Blender's own Python: tests/blender_session.py)
+and writes what it measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
 $HYPERGS_BLENDER_PYTHON runs the session with another Python that has bpy (e.g. bpy 4.2 LTS).
 """
-import importlib
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import make_pan_clip, run_blender_session, step
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, operator_defaults, read_mesh,
+                             run_blender_session, session_main, snapshot, start_session, step, types_namespace)
+from blender_headless import SAMPLE, install_extension, read_png, render_png
+from conftest import make_pan_clip
+
 from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,9 +75,7 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     assert r["defaults"] == ["AUTO", 0] and "CPUExecutionProvider" in r["available"]
     # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
     assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
-    assert r["policy"] == [["CUDAExecutionProvider", "CPUExecutionProvider"], ["CPUExecutionProvider"],
-                           ["CPUExecutionProvider"], ["CoreMLExecutionProvider", "CPUExecutionProvider"],
-                           ["DmlExecutionProvider", "CPUExecutionProvider"]]
+    # (The policy itself, providers_for, is tested without Blender: test_runtime.py.)
     assert r["preferences_drawn"]
 
 
@@ -187,18 +187,13 @@ def test_reencode_replaces_points_and_keeps_modifiers(session):
 # Blender side (run as a script: python test_blender_addon.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    results = {}
-    record = job.step_recorder(results, out_path)
-    CLIP = Path(work) / f"{CLIP_NAME}.mp4"
-
-    bpy = job.start_blender(Path(work) / "user")
+    CLIP = work / f"{CLIP_NAME}.mp4"
+    bpy, record, results = start_session(work, out_path)
     ctx = {}
 
     @record("install")
     def _():
-        addon = job.install_extension(bpy, zip_path)
+        addon = install_extension(bpy, zip_path)
         ctx["addon"] = addon
         return dict(module=addon.__name__, file=addon.__file__,
                     operators=sorted(n for n in dir(bpy.ops.hypergs) if not n.startswith("_")),
@@ -207,13 +202,13 @@ def run_session(zip_path, work, out_path):
                     torch_importable=_importable("torch"))
 
     addon = ctx["addon"]
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.io.images import resize_exact
     from hypergs_blender.metrics import psnr
     from hypergs_blender.points import points_to_params
     from hypergs_blender.render import render_frames, render_params
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = 24, 1.0
 
@@ -252,7 +247,7 @@ def run_session(zip_path, work, out_path):
 
     @record("bundled_encoder")
     def _():
-        encoder_module = _import(addon, "ops.encoder")
+        encoder_module = addon_module(addon, "hypergs_blender.runtime")
         weights = Path(addon.__file__).parent / "hypergs_blender" / "weights"
         has_onnx = any(weights.glob("*.onnx"))
         saved = os.environ.get("HYPERGS_ENCODER")
@@ -266,7 +261,7 @@ def run_session(zip_path, work, out_path):
             raised = False
             if error is not None:  # the operator reports it and changes nothing
                 try:
-                    bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE))
+                    bpy.ops.hypergs.import_video(filepath=str(SAMPLE))
                 except RuntimeError:
                     raised = True
             unchanged = snapshot(bpy) == before
@@ -277,7 +272,7 @@ def run_session(zip_path, work, out_path):
 
     @record("providers")
     def _():
-        encoder_module, prefs_module = _import(addon, "ops.encoder"), _import(addon, "ops.preferences")
+        encoder_module, prefs_module = addon_module(addon, "hypergs_blender.runtime"), addon_module(addon, "ops.preferences")
         prefs = bpy.context.preferences.addons[prefs_module.ADDON].preferences
         defaults = [prefs.device, prefs.threads]
         prefs.device, prefs.threads = "CUDAExecutionProvider", 1
@@ -292,21 +287,17 @@ def run_session(zip_path, work, out_path):
             os.environ["HYPERGS_ENCODER"] = saved or ""
             prefs.device, prefs.threads = defaults
             encoder_module._cache.clear()
-        cuda, dml, coreml, cpu = encoder_module.PROVIDERS
-        policy = [encoder_module.providers_for("AUTO", [cuda, cpu]), encoder_module.providers_for(dml, [cuda, cpu]),
-                  encoder_module.providers_for(cpu, [coreml, cpu]), encoder_module.providers_for("AUTO", [coreml, cpu]),
-                  encoder_module.providers_for(dml, [cuda, dml, cpu])]
         layout = Recorder()
         type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
         return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
-                    policy=policy, preferences_drawn=[list(c) for c in layout.calls])
+                    preferences_drawn=[list(c) for c in layout.calls])
 
     @record("import_dialog")
     def _():
         op = bpy.types.HYPERGS_OT_import_video
         out = {}
-        for name, path, frames in (("pan", CLIP, {}), ("sample", job.SAMPLE, dict(first_frame=11, last_frame=40)),
-                                   ("reversed", job.SAMPLE, dict(first_frame=10, last_frame=5))):
+        for name, path, frames in (("pan", CLIP, {}), ("sample", SAMPLE, dict(first_frame=11, last_frame=40)),
+                                   ("reversed", SAMPLE, dict(first_frame=10, last_frame=5))):
             layout = Recorder()
             options = dict(operator_defaults(bpy, op), filepath=str(path), **frames)
             namespace = types_namespace(layout=layout, **options)
@@ -318,7 +309,7 @@ def run_session(zip_path, work, out_path):
 
     @record("cancel")
     def _():
-        plan = _import(addon, "hypergs_blender.encode").EncodePlan
+        plan = addon_module(addon, "hypergs_blender.encode").EncodePlan
         original = plan.chunks
         calls = []
 
@@ -336,8 +327,9 @@ def run_session(zip_path, work, out_path):
         finally:
             plan.chunks = original
         after = snapshot(bpy)
-        jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, None)]).start()
+        jobs = addon_module(addon, "ops.jobs")
+        chosen = addon_module(addon, "hypergs_blender.encode").EncodeSettings(gaussians=500)
+        threaded = jobs.EncodeJob([jobs.Source(CLIP_NAME, str(CLIP))], chosen).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
@@ -347,7 +339,7 @@ def run_session(zip_path, work, out_path):
     def _():
         for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
             bpy.data.objects.remove(o)
-        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
+        result = bpy.ops.hypergs.import_video(filepath=str(SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
         obj = bpy.data.objects["sample"]
         s = obj.hypergs
         out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
@@ -359,7 +351,7 @@ def run_session(zip_path, work, out_path):
         bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    reference = encode_video(str(CLIP), encoder, REQUESTED)  # what Quality: Custom asks for
+    reference = encode_video(str(CLIP), encoder, EncodeSettings(gaussians=REQUESTED))  # what Quality: Custom asks for
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("clip")
@@ -389,8 +381,8 @@ def run_session(zip_path, work, out_path):
         scene.render.resolution_x, scene.render.resolution_y = width, height
         scene.render.resolution_percentage = 100
         png = Path(work) / f"{name}.png"
-        seconds = job.render_png(bpy, scene, frame, png)
-        return job.read_png(bpy, png), seconds
+        seconds = render_png(bpy, scene, frame, png)
+        return read_png(bpy, png), seconds
 
     def core_render(params, width, height):
         return np.clip(render_params(params, 432, 240, width, height), 0, 1)
@@ -418,7 +410,7 @@ def run_session(zip_path, work, out_path):
         scene.render.filepath = str(Path(work) / "anim" / "f_####")
         bpy.ops.render.render(animation=True)
         files = sorted(p.name for p in (Path(work) / "anim").glob("f_*.png"))
-        first, last = (job.read_png(bpy, Path(work) / "anim" / name) for name in (files[0], files[-1]))
+        first, last = (read_png(bpy, Path(work) / "anim" / name) for name in (files[0], files[-1]))
         scene.frame_start, scene.frame_end = 1, 70
         return dict(files=files, first_vs_last_psnr=float(psnr(last, first)))
 
@@ -519,8 +511,8 @@ def run_session(zip_path, work, out_path):
         sc = bpy.context.scene
         sc.frame_set(35)
         png = Path(work) / "reload_after.png"
-        job.render_png(bpy, sc, 35, png)
-        after_render = job.read_png(bpy, png)
+        render_png(bpy, sc, 35, png)
+        after_render = read_png(bpy, png)
         ctx["obj"] = again
         return dict(attributes_equal=all(np.array_equal(before_attrs[k], after_attrs[k]) for k in before_attrs),
                     settings_equal=settings(again) == before_settings,
@@ -580,25 +572,6 @@ def _importable(name):
         return False
 
 
-def _import(addon, name):
-    import importlib
-    return importlib.import_module(f"{addon.__name__}.{name}")
-
-
-def read_mesh(mesh):
-    n = len(mesh.vertices)
-    out = {"position": np.empty(n * 3, np.float32)}
-    mesh.attributes["position"].data.foreach_get("vector", out["position"])
-    for name, key, size, dtype in (("scale", "vector", 2, np.float32), ("rotation", "value", 1, np.float32),
-                                   ("color", "color", 4, np.float32), ("frame", "value", 1, np.int32)):
-        out[name] = np.empty(n * size, dtype)
-        mesh.attributes[name].data.foreach_get(key, out[name])
-    out["position"] = out["position"].reshape(n, 3)
-    out["scale"] = out["scale"].reshape(n, 2)
-    out["color"] = out["color"].reshape(n, 4)
-    return out
-
-
 def settings(obj):
     s = obj.hypergs
     values = {k: getattr(s, k) for k in ("is_clip", "source", "num_frames", "gaussians_per_frame", "psnr",
@@ -618,84 +591,5 @@ def set_position_group(bpy, offset):
     return group
 
 
-def attempt_unchanged(bpy, expect, call) -> dict:
-    """Run an operator call expected to fail: did it raise, with what message, and is the scene
-    (snapshot) exactly as before?"""
-    before = snapshot(bpy)
-    message, raised = "", False
-    try:
-        call()
-    except RuntimeError as e:
-        message, raised = str(e), True
-    after = snapshot(bpy)
-    return dict(raised=raised, message=message, expect=expect, unchanged=before == after, diff=diff(before, after))
-
-
-def snapshot(bpy):
-    """What an operator must not change when it fails or is cancelled: every datablock collection of
-    bpy.data (names), the scene's settings the add-on touches, its strips, the selection."""
-    data = {}
-    for kind in dir(bpy.data):
-        collection = getattr(bpy.data, kind, None)
-        if isinstance(collection, bpy.types.bpy_prop_collection) and kind not in ("window_managers", "screens"):
-            data[kind] = sorted(x.name_full for x in collection if isinstance(x, bpy.types.ID))
-    sc = bpy.context.scene
-    editor = sc.sequence_editor
-    strips = []
-    if editor is not None:
-        compat = importlib.import_module("bl_ext.user_default.hypergs.com.compat")
-        strips = sorted((s.name, s.type, s.mute, s.select, s.channel, compat.strip_range(s))
-                        for s in compat.all_strips(editor))
-    vs = sc.view_settings
-    data["scene"] = dict(engine=sc.render.engine, view=vs.view_transform, look=vs.look, exposure=vs.exposure,
-                         gamma=vs.gamma, camera=sc.camera.name if sc.camera else None,
-                         frames=[sc.frame_start, sc.frame_end, sc.frame_current], strips=strips,
-                         preview=sc.render.sequencer_gl_preview, use_sequencer=sc.render.use_sequencer,
-                         active=bpy.context.view_layer.objects.active.name
-                         if bpy.context.view_layer.objects.active else None,
-                         selected=sorted(o.name for o in bpy.context.view_layer.objects if o.select_get()))
-    return data
-
-
-def diff(a, b):
-    return {k: (a.get(k), b.get(k)) for k in set(a) | set(b) if a.get(k) != b.get(k)}
-
-
-class Recorder:
-    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
-
-    def __init__(self, calls=None, attributes=None):
-        self.__dict__["calls"] = [] if calls is None else calls
-        self.__dict__["attributes"] = {} if attributes is None else attributes
-
-    def __setattr__(self, name, value):  # alert, use_property_split, operator_context, ...
-        self.attributes[name] = value
-
-    def __getattr__(self, name):
-        def call(*args, **kwargs):
-            if name in ("label", "operator"):
-                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
-            elif name == "prop":
-                self.calls.append((name, args[1], None))
-            return Recorder(self.calls, self.attributes)
-        return call
-
-
-def types_namespace(**kwargs):
-    from types import SimpleNamespace
-    return SimpleNamespace(**kwargs)
-
-
-def operator_defaults(bpy, operator_class) -> dict:
-    """{property: default} of an operator class (what its dialog starts from)."""
-    module, name = operator_class.bl_idname.split(".")
-    properties = getattr(getattr(bpy.ops, module), name).get_rna_type().properties
-    return {p.identifier: p.default for p in properties
-            if p.identifier != "rna_type" and hasattr(p, "default") and not getattr(p, "is_array", False)}
-
-
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    os._exit(0)  # skip bpy's slow teardown
+    session_main(run_session)

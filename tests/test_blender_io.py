@@ -1,21 +1,18 @@
 """Gaussian video files in the real bpy wheel: File > Export / Import (.hgs, .usd, .npz) with edits,
 clips linked to an external .hgs file (render, missing and damaged files), image sequences.
 
-One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares): this
-file run as a script writes what it measured to JSON; the tests below check it.
+One Blender session in a subprocess (tests/blender_session.py): this file run as a script writes what
+it measured to JSON; the tests below check it.
 """
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_blender_session, step
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, read_mesh, snapshot,  # noqa: E402
-                                types_namespace)
+from blender_headless import install_extension, read_png
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, read_mesh, run_blender_session,
+                             session_main, snapshot, start_session, step, types_namespace)
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
@@ -184,17 +181,11 @@ def test_image_strip_converts_keeping_its_timing(session):
 # Blender side (run as a script: python test_blender_io.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    work = Path(work)
-    results = {}
-    record = job.step_recorder(results, out_path)
-
-    bpy = job.start_blender(work / "user")
-    addon = job.install_extension(bpy, zip_path)
-    linked = _import(addon, "com.linked")
+    bpy, record, results = start_session(work, out_path)
+    addon = install_extension(bpy, zip_path)
+    linked = addon_module(addon, "com.linked")
     from hypergs_blender.io.codec import Quantizer
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.gaussians import GaussianVideo
     from hypergs_blender.io.hgs import load_hgs
     from hypergs_blender.io.npz import save_npz
@@ -254,7 +245,7 @@ def run_session(zip_path, work, out_path):
         sc.render.image_settings.color_mode = "RGB"
         sc.render.filepath = str(png)
         result = bpy.ops.render.render(write_still=True)
-        return job.read_png(bpy, png), sorted(result)
+        return read_png(bpy, png), sorted(result)
 
     def attempt(expect, call):
         return attempt_unchanged(bpy, expect, call)
@@ -368,7 +359,7 @@ def run_session(zip_path, work, out_path):
                     edit_frame_poll=poll["edit_frame"], reencode_poll=poll["reencode"])
 
     lobj, eobj = bpy.data.objects["linked"], bpy.data.objects["embedded"]
-    panel = _import(addon, "ui").HYPERGS_PT_clip
+    panel = addon_module(addon, "ui").HYPERGS_PT_clip
 
     def panel_draw(obj):
         """What the clip panel draws for `obj`: [(call, text or property, icon)] (a recording layout)."""
@@ -410,7 +401,7 @@ def run_session(zip_path, work, out_path):
                              restored_matches=bool(np.abs(again - reference).max() == 0))
         out["panel_fine"] = panel_draw(lobj)
         out["panel_embedded"] = panel_draw(eobj)
-        stop = _import(addon, "engine").missing_clips_stop
+        stop = addon_module(addon, "engine").missing_clips_stop
         out["policy"] = [[*case, stop(*case)] for case in ((False, False, False), (True, False, False),
                                                              (False, True, False), (True, True, True))]
         return out
@@ -515,7 +506,7 @@ def run_session(zip_path, work, out_path):
     for o in list(bpy.data.objects):
         if o.type == "MESH":
             bpy.data.meshes.remove(o.data)
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
     folder = work / "seq"
     folder.mkdir()
     yy, xx = np.mgrid[0:48, 0:64] / np.float32(48)
@@ -524,7 +515,7 @@ def run_session(zip_path, work, out_path):
         rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
         write_image(folder / f"frame_{i + 1:04d}.png", rgb)
     (folder / "notes.txt").write_text("not a frame")
-    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250)
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, EncodeSettings(gaussians=250))
 
     def compare(obj, first):
         p, _ = mesh_params(obj)
@@ -549,7 +540,7 @@ def run_session(zip_path, work, out_path):
         strip = strips.new_image(name="seq", filepath=str(folder / "frame_0001.png"), channel=2, frame_start=10)
         for i in range(2, SEQUENCE + 1):
             strip.elements.append(f"frame_{i:04d}.png")
-        compat = _import(addon, "com.compat")
+        compat = addon_module(addon, "com.compat")
         if hasattr(strip, "left_handle_offset"):  # trimmed: the strip starts at scene frame 11 with the second image
             strip.left_handle_offset = 1
         else:
@@ -624,8 +615,4 @@ def run_session(zip_path, work, out_path):
 
 
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)  # skip bpy's slow teardown
+    session_main(run_session)

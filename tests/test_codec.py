@@ -199,8 +199,8 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
 
 
 def test_hgs_round_trip_of_floor_encoder_gaussians(tmp_path):
-    from hypergs_blender.encode import FloorEncoder, encode_video
-    video = encode_video(VIDEO, FloorEncoder(), gaussians=256, size=64, num_frames=6)
+    from hypergs_blender.encode import EncodeSettings, FloorEncoder, encode_video
+    video = encode_video(VIDEO, FloorEncoder(), EncodeSettings(gaussians=256), size=64, num_frames=6)
     sizes = {}
     for bits in (8, 4):
         sizes[bits] = save_hgs(video, tmp_path / f"c{bits}.hgs", bits=bits)

@@ -27,18 +27,11 @@ from hypothesis import strategies as st
 if __name__ == "__main__":  # run as a script from anywhere: the package is in the checkout
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fuzzing import Stats, fuzz_limits, outcome  # noqa: E402
+from fuzzing import HEADER_FIELDS, Stats, fuzz_limits, outcome, set_header_field  # noqa: E402
 from hypergs_blender.errors import HyperGSError, LimitError
 from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
 
-# (name, struct format) of the fixed header fields, in order
-HEADER_FIELDS = [("magic", "8s"), ("version", "H"), ("flags", "H"), ("canvas_w", "I"), ("canvas_h", "I"),
-                 ("fps", "d"), ("n", "I"), ("grid_c", "H"), ("grid_r", "H"), ("frames", "I"), ("group", "H"),
-                 ("reserved", "H")] + [(f"bits{i}", "B") for i in range(8)] + \
-                [(f"transform{i}", "B") for i in range(8)] + [(f"range{i}", "d") for i in range(16)] + \
-                [("index_offset", "Q"), ("json_len", "I")]
-assert struct.calcsize("<" + "".join(f for _, f in HEADER_FIELDS)) == _HEADER.size
 INTERESTING_INTS = [0, 1, 2, 3, 7, 8, 15, 16, 17, 63, 64, 65, 255, 256, 4096, 65535, 65536, 1 << 20, (1 << 20) + 1,
                     (1 << 31) - 1, 1 << 31, (1 << 32) - 1, 1 << 32, (1 << 63) - 1, (1 << 64) - 1]
 INTERESTING_FLOATS = [0.0, -0.0, 1.0, -1.0, 1e-300, 1e300, -1e300, math.inf, -math.inf, math.nan, 88.0, 70.0, 1e30]
@@ -92,19 +85,6 @@ def resign_chunk(data: bytearray, chunk: int) -> None:
 def resign_index(data: bytearray) -> None:
     end = len(data) - _CRC.size
     data[end:] = _CRC.pack(zlib.crc32(bytes(data[LAYOUT["index"]:end])))
-
-
-def set_header_field(data: bytearray, name: str, value) -> None:
-    offset = 0
-    for field, fmt in HEADER_FIELDS:
-        if field == name:
-            try:
-                struct.pack_into("<" + fmt, data, offset, value)
-            except struct.error:
-                struct.pack_into("<" + fmt, data, offset, int(value) % (1 << (8 * struct.calcsize(fmt))))
-            return
-        offset += struct.calcsize("<" + fmt)
-    raise KeyError(name)
 
 
 def mutate(kind: str, rnd: random.Random, data: bytes = BASE) -> bytes:

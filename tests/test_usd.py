@@ -101,3 +101,26 @@ def test_usd_cli_round_trip(tmp_path, capsys, monkeypatch):
     a, b = load_hgs(tmp_path / "c.hgs"), load_hgs(tmp_path / "back.hgs")
     # .hgs -> USD -> .hgs: the second quantization lands on the same levels, up to float rounding
     np.testing.assert_allclose(b.params[..., 5:8], a.params[..., 5:8], atol=1e-5)
+
+
+def test_crate_files_are_read_in_a_child_and_its_errors_come_back(tmp_path, monkeypatch):
+    """A binary file (.usdc, or .usd holding a crate) is read in a child process: what it reads and the
+    errors it raises (their type and one-line message) come back as from a read in this process."""
+    from hypergs_blender.errors import LimitError
+    from hypergs_blender.io import usd
+
+    video = make_video(t=3, n=20)
+    export_usd(video, tmp_path / "c.usd")  # a crate, whatever the suffix
+    export_usd(video, tmp_path / "c.usda")
+    children = []
+    read_in_child = usd._read_in_child
+    monkeypatch.setattr(usd, "_read_in_child", lambda *a: children.append(a[0].name) or read_in_child(*a))
+    np.testing.assert_array_equal(import_usd(tmp_path / "c.usd").params, import_usd(tmp_path / "c.usda").params)
+    assert children == ["c.usd"]  # the text file is read here
+    monkeypatch.setenv("HYPERGS_LIMIT_FRAMES", "2")
+    with pytest.raises(LimitError, match="HYPERGS_LIMIT_FRAMES") as error:
+        import_usd(tmp_path / "c.usd")
+    assert "c.usd" in str(error.value) and children == ["c.usd", "c.usd"]
+    monkeypatch.delenv("HYPERGS_LIMIT_FRAMES")
+    with pytest.raises(UsdError, match="no UsdGeomPoints prim at /Nothing"):
+        import_usd(tmp_path / "c.usd", prim_path="/Nothing")

@@ -8,11 +8,12 @@ import bpy
 
 from ..com import linked
 from ..com.mesh import linked_file
-from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
-                             HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
-                             HYPERGS_OT_reencode)
 from ..ops import preferences, quality
-from ..ops.operators import reencode_source
+from ..ops.clip_files import HYPERGS_OT_embed_clip, HYPERGS_OT_export_clip, HYPERGS_OT_import_clip
+from ..ops.context import active_clip
+from ..ops.edit_frame import HYPERGS_OT_edit_frame
+from ..ops.encode import HYPERGS_OT_convert_strip, HYPERGS_OT_import_video, HYPERGS_OT_reencode
+from ..ops.sources import reencode_source
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -23,14 +24,13 @@ class HYPERGS_PT_clip(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip
+        return active_clip(context) is not None
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        obj = context.object
+        obj = active_clip(context)
         s = obj.hypergs
         col = layout.column(align=True)
         col.label(text=f"Source: {os.path.basename(s.source) or '-'}", icon="FILE_MOVIE")

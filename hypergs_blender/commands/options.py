@@ -15,6 +15,7 @@ import math
 from pathlib import Path
 
 from .. import limits
+from ..encode import DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
 from ..network import BACKENDS, resolve_encoder
@@ -311,24 +312,25 @@ def add_encoder_arguments(parser) -> None:
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--weights", default=None, type=input_folder,
                         help="folder with <name>.json/.safetensors/.onnx")
-    parser.add_argument("--refine", type=non_negative_int, default=0,
-                        help="per-frame refinement steps after the prediction")
 
 
-def add_density_arguments(parser, default_cell: float | None = None) -> None:
-    """How many Gaussians: a count per frame, or a cell size (one Gaussian per cell x cell source pixels)."""
+def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
+    """What the encode is asked for (encode.EncodeSettings): a Quality preset, a Gaussian count per
+    frame or a cell size (one Gaussian per cell x cell source pixels), and refine steps."""
     group = parser.add_mutually_exclusive_group()
+    group.add_argument("--quality", choices=list(QUALITY), default=None,
+                       help="a preset: " + ", ".join(f"{name} (cells of {p['cell']:g} px"
+                                                      + (f", refined {p['refine']} steps)" if p["refine"] else ")")
+                                                      for name, p in QUALITY.items()) + f"; default {default}")
     group.add_argument("--gaussians", type=gaussian_count, default=None, help="Gaussians per frame (about; on a grid of cells)")
-    group.add_argument("--cell", type=positive_float, default=None,
-                       help=f"source pixels per Gaussian cell side (default {default_cell:g})" if default_cell
-                       else "source pixels per Gaussian cell side")
-    parser.set_defaults(default_cell=default_cell)
+    group.add_argument("--cell", type=positive_float, default=None, help="source pixels per Gaussian cell side")
+    parser.add_argument("--refine", type=non_negative_int, default=None,
+                        help="per-frame refinement steps after the prediction (default: the preset's, else 0)")
+    parser.set_defaults(default_quality=default)
 
 
-def density_from_args(args) -> dict:
-    if args.gaussians is None and args.cell is None:
-        return dict(cell=args.default_cell)
-    return dict(gaussians=args.gaussians, cell=args.cell)
+def settings_from_args(args) -> EncodeSettings:
+    return EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine, default=args.default_quality)
 
 
 def encoder_from_args(args, device=None):

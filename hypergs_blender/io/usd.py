@@ -19,22 +19,30 @@ Layout written by `export_usd`:
 position mapping). The suffix picks the file format: .usd / .usdc binary, .usda text.
 Reading checks the file size, the frame and point counts against limits.py before it reads the
 frames, and every value after (GaussianVideo.checked: no NaN, scales > 0). Payloads are not loaded.
-usd-core's binary (crate) reader trusts the array sizes in the file: a damaged 3 KB .usdc can make it
-allocate tens of GB (tests/test_input_fuzz.py found it). So the read runs with the process' address
-space capped at its current size plus a headroom (`_address_space_headroom`, Linux), where such an
-allocation fails and USD reports an error instead.
+usd-core's binary (crate) reader trusts the file: a damaged .usdc can make it allocate tens of GB or
+crash the process (SIGSEGV: 5 of 16,000 damaged files in tests/test_input_fuzz.py's runs), which in
+Blender would take the user's session with it. So a crate file (`.usdc`, or any file that starts like
+one) is read in a child process (`_read_in_child`: this module run by the same Python), where a crash
+is an error message naming the file; text files (.usda) are read here. Either way the read runs with
+its process' address space capped at its size plus a headroom (`_address_space_headroom`, Linux),
+where such an allocation fails and USD reports an error instead.
 """
 from __future__ import annotations
 
+import builtins
 import json
 import os
+import pickle
+import signal
+import subprocess
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from .. import limits
-from ..errors import HyperGSError, reason
+from ..errors import HyperGSError, LimitError, reason
 from ..gaussians import NUM_PARAMS, GaussianVideo
 from .files import AtomicOutput
 
@@ -43,6 +51,7 @@ PRIM_PATH = "/GaussianVideo/Gaussians"
 METADATA_KEY = "hypergs"
 USD_VERSION = 1
 USD_SUFFIXES = (".usd", ".usda", ".usdc")
+CRATE_MAGIC = b"PXR-USDC"  # the first bytes of a binary (crate) USD file
 
 
 class UsdError(HyperGSError):
@@ -119,13 +128,79 @@ def find_gaussian_prim(stage, prim_path: str | None = None):
 
 
 def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
-    """Read a Gaussian video written by export_usd back (frames in time-sample order)."""
-    from pxr import Tf, Usd
-
+    """Read a Gaussian video written by export_usd back (frames in time-sample order); a crate file in a
+    child process (see the module's doc)."""
     path = Path(path)
     if not path.is_file():
         raise UsdError(f"{path}: no such file")
     limits.BYTES.check(path.stat().st_size, str(path))
+    if path.suffix.lower() == ".usdc" or _starts_like_a_crate(path):
+        return _read_in_child(path, prim_path)
+    return _read_usd(path, prim_path)
+
+
+def _starts_like_a_crate(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(CRATE_MAGIC)) == CRATE_MAGIC
+    except OSError as e:
+        raise UsdError(f"{path}: cannot read it ({e.strerror or e})") from None
+
+
+# Exceptions a child's read may end in that the parent raises again as they were (by name): ours, and
+# Python's own (a missing pxr is a ModuleNotFoundError, as in one process); anything else is a RuntimeError.
+_CHILD_ERRORS = {cls.__name__: cls for cls in (UsdError, LimitError, HyperGSError)}
+
+
+def _read_in_child(path: Path, prim_path: str | None) -> GaussianVideo:
+    """_read_usd in a child process, run by this Python with this process' module path (where pxr and
+    numpy are) and this package first on it, so a crash there (usd-core on a damaged file) is a UsdError
+    naming the file. The child sends back plain values (pickled; it is our own code), never our classes:
+    the package may have another name here (bl_ext.user_default.hypergs.hypergs_blender in Blender)."""
+    package_parent = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([package_parent, *(p for p in sys.path if p)]))
+    code = "from hypergs_blender.io.usd import _child_main; _child_main()"
+    proc = subprocess.run([sys.executable, "-c", code, str(path), prim_path or ""], env=env, capture_output=True,
+                          cwd=package_parent, creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
+    if proc.returncode < 0:
+        try:
+            name = signal.Signals(-proc.returncode).name
+        except ValueError:
+            name = f"signal {-proc.returncode}"
+        raise UsdError(f"{path}: damaged USD data (usd-core crashed reading it: {name})")
+    try:
+        ok, value = pickle.loads(proc.stdout)
+    except Exception:
+        lines = [line for line in proc.stderr.decode(errors="replace").splitlines() if line.strip()]
+        raise UsdError(f"{path}: cannot read it (the reading process ended with status {proc.returncode}"
+                       + (f": {lines[-1].strip()})" if lines else ")")) from None
+    if ok:
+        params, width, height, fps, grid, source = value
+        return GaussianVideo(params, width, height, fps, grid, source)
+    name, message = value
+    error = _CHILD_ERRORS.get(name) or getattr(builtins, name, None)
+    if not (isinstance(error, type) and issubclass(error, Exception)):
+        error, message = RuntimeError, f"{name}: {message}"
+    raise error(message)
+
+
+def _child_main() -> None:
+    """The child's side of _read_in_child: argv [path, prim path or ""] -> pickled (True, clip values) or
+    (False, (exception type name, message)) on stdout."""
+    path, prim_path = Path(sys.argv[1]), sys.argv[2] or None
+    try:
+        video = _read_usd(path, prim_path)
+        result = (True, (video.params, video.canvas_width, video.canvas_height, video.fps, video.grid, video.source))
+    except Exception as e:
+        result = (False, (type(e).__name__, str(e)))
+    sys.stdout.buffer.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+    sys.stdout.flush()
+
+
+def _read_usd(path: Path, prim_path: str | None) -> GaussianVideo:
+    """The read itself, in this process."""
+    from pxr import Tf, Usd
+
     with _address_space_headroom(4 * limits.BYTES.value + (1 << 30)):
         try:
             stage = Usd.Stage.Open(str(path), Usd.Stage.LoadNone)

@@ -197,6 +197,15 @@ def test_onnx_matches_torch(tmp_path, stem_level, warp, fine):
         np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)
 
 
+def test_onnx_graph_has_gelu_as_one_op(tmp_path):
+    import onnx
+
+    from hypergs_blender.training.export import export_onnx
+    export_onnx(random_conv(ConvConfig(width=16, stem=8, blocks=(2,))), tmp_path / "m.onnx")
+    ops = [node.op_type for node in onnx.load(tmp_path / "m.onnx").graph.node]
+    assert ops.count("Gelu") == 2 + 2 * 2 and "Erf" not in ops  # the stem's two, two per block
+
+
 def test_onnx_session_uses_the_providers_and_threads_asked_for():
     import onnxruntime as ort
 

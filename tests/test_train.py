@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from hypergs_blender.commands import train as train_commands
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.metrics import psnr_from_mse
 from hypergs_blender.render import render_torch
 from hypergs_blender.training import train
@@ -209,3 +210,22 @@ def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
     main(argv + ["--config", "warp=1.5", "stem_level=cell"])
     config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
     assert config["warp"] == 1.5 and config["stem_level"] == "cell" and config["width"] == 8
+
+
+def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
+    args = training_args(tmp_path / "run", 4, "conv")
+    args.lr_scale = {"head": 30.0}
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    rest, head = sorted(state["optimizer"]["param_groups"], key=lambda group: group["lr_scale"])
+    assert (rest["lr_scale"], head["lr_scale"]) == (1.0, 30.0)
+    assert len(head["params"]) == 2  # the head's weight and bias
+    assert head["lr"] == pytest.approx(30 * rest["lr"]) and rest["lr"] > 0
+    args = training_args(tmp_path / "run", 6, "conv")  # a resume keeps the groups the run started with
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert int(state["step"]) == 6 and len(state["optimizer"]["param_groups"]) == 2
+    args = training_args(tmp_path / "other", 2, "conv")
+    args.lr_scale = {"wrap": 3.0}
+    with pytest.raises(HyperGSError, match="wrap not parts of this network"):
+        train.run(args)

@@ -117,6 +117,19 @@ class ConfigItem(ArgType):
             return field, value
 
 
+class LrScale(ArgType):
+    """PART=FACTOR: a top-level part of a network (a module name: warp, head, ...; checked when the run
+    starts) and a positive learning-rate factor for its parameters."""
+
+    refused = ("", "warp", "warp=", "=3", "warp=0", "warp=-1", "warp=abc", "a.b=2")
+
+    def __call__(self, text: str) -> tuple[str, float]:
+        part, sep, value = text.partition("=")
+        if not sep or not part.isidentifier():
+            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a top-level part of the network), got {text!r}")
+        return part, positive_float(value)
+
+
 class Name(ArgType):
     """A file name without a folder (the stem of files written into a folder)."""
 
@@ -271,6 +284,7 @@ non_negative_float = Real(0.0, inclusive=True)
 fraction = Real(0.0, inclusive=True, high=1.0)
 text = Text()
 config_item = ConfigItem()
+lr_scale = LrScale()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()

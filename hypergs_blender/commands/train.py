@@ -39,6 +39,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--size", type=options.image_side, default=128, help="crop size of the conv network's training frames")
     p.add_argument("--lr", type=options.positive_float, default=None,
                    help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
+    p.add_argument("--lr-scale", nargs="+", default=[], metavar="PART=FACTOR", type=options.lr_scale,
+                   help="conv, a new run: the learning rate of a top-level part of the network times FACTOR, "
+                        "e.g. warp=30 (a new head that starts at zero)")
     p.add_argument("--clip", type=options.positive_float, default=None,
                    help="gradient norm clipping (conv 0.5, transformer 1.0)")
     p.add_argument("--warmup", type=options.non_negative_int, default=200)
@@ -79,6 +82,7 @@ def _train_command(args) -> None:
     if unknown:
         raise HyperGSError(f"--config: {', '.join(unknown)} not fields of the {args.preset} preset's config")
     args.config = dict(args.config)
+    args.lr_scale = dict(args.lr_scale)
     run(args)
 
 

@@ -134,6 +134,20 @@ def warm_start(model, path, rank: int = 0) -> None:
         print(f"warm start from {path}: {len(taken)} tensors; kept at initialisation: {', '.join(left)}", flush=True)
 
 
+def lr_groups(model, lr_scale: dict) -> list[dict]:
+    """The trainable parameters in AdamW groups: one per learning-rate factor, the parameters of each
+    top-level part named in `lr_scale` (part -> factor) with its factor, the rest with 1."""
+    parts = {name for name, _ in model.named_children()}
+    unknown = sorted(set(lr_scale) - parts)
+    if unknown:
+        raise HyperGSError(f"--lr-scale: {', '.join(unknown)} not parts of this network ({', '.join(sorted(parts))})")
+    groups = {}
+    for name, parameter in model.named_parameters():
+        if parameter.requires_grad:
+            groups.setdefault(float(lr_scale.get(name.split(".")[0], 1.0)), []).append(parameter)
+    return [dict(params=params, lr_scale=scale) for scale, params in groups.items()]
+
+
 def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank: int) -> torch.Tensor:
     """The frames plus Gaussian noise of a standard deviation drawn per frame, uniformly in [0, max_std]
     (in 1/255), quantised to 8 bits like a video frame: what the network sees when it learns that
@@ -201,8 +215,9 @@ def run(args) -> None:
                 parameter.requires_grad_(not name.startswith("head."))
     regularizer = None if conv else AdaptiveRegularizer().to(device)
     if conv:
-        trainable = [p for p in model.parameters() if p.requires_grad]
-        optimizer = torch.optim.AdamW(trainable, lr=args.lr, weight_decay=1e-4)
+        # a run keeps the parameter groups it started with (a checkpoint's optimizer state needs them)
+        lr_scale = dict(json.loads(resume["args"]).get("lr_scale") or {}) if resume else dict(args.lr_scale)
+        optimizer = torch.optim.AdamW(lr_groups(model, lr_scale), lr=args.lr, weight_decay=1e-4)
     else:
         optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
     step, wall, cpu = 0, 0.0, 0.0

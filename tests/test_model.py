@@ -1,5 +1,6 @@
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -195,6 +196,26 @@ def test_onnx_matches_torch(tmp_path, stem_level, warp, fine):
         a, b = onnx.predict(frames), torch_.predict(frames)
         assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
         np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)
+
+
+def test_the_bundled_onnx_model_is_the_bundled_weights():
+    """What Blender runs (hypergs.onnx, onnxruntime) gives the Gaussians that the bundled .safetensors give in
+    torch on a real frame: the ONNX file was exported from these weights, at ONNX_OPSET (GELU as one op).
+    Float32 sums in another order differ by ~5e-6 (canvas units, scales in cells); other weights by > 1e-2."""
+    import onnx
+
+    from hypergs_blender.io.frames import read_frames
+    from hypergs_blender.network import WEIGHTS_DIR, resolve_encoder
+    from hypergs_blender.training.export import ONNX_OPSET
+    graph = onnx.load(str(WEIGHTS_DIR / "hypergs.onnx"))
+    assert [(o.domain, o.version) for o in graph.opset_import] == [("", ONNX_OPSET)]
+    assert "Gelu" in {node.op_type for node in graph.graph.node}
+    frames, _, _ = read_frames(Path(__file__).resolve().parents[1] / "hypergs_blender" / "samples" / "sample.mp4", 2)
+    frames = (frames[:, :frames.shape[1] // 4 * 4, :frames.shape[2] // 4 * 4] / 255).astype(np.float32)
+    onnx_params = resolve_encoder("network", "onnx", threads=1).predict(frames)
+    torch_params = resolve_encoder("network", "torch", device="cpu").predict(frames)
+    assert onnx_params.shape == (2, frames.shape[1] * frames.shape[2] // 16, 8)
+    np.testing.assert_allclose(onnx_params, torch_params, atol=2e-5, rtol=0)
 
 
 def test_onnx_graph_has_gelu_as_one_op(tmp_path):

@@ -10,8 +10,7 @@ and more Gaussians always see more of the frame. Per frame:
       -> a stem to one feature per cell (`stem_level`): "pixel": two 3x3 convs at full resolution
          and a stride x stride conv down to the cells; "cell": a 3x3 conv over the cells' pixels
          (pixel-unshuffle), a GELU and a 1x1 conv, all at cell resolution (~5x cheaper: the
-         full-resolution convs are memory-bound) -- plus a linear map of the cell's own pixels,
-         and optionally (`fine`) a 3x3 conv over 2 x 2 pixel blocks and a GELU, gathered per cell
+         full-resolution convs are memory-bound) -- plus a linear map of the cell's own pixels
       -> residual 3x3 blocks at cell resolution, then at coarser levels (x2 each, for context) and
          back up with skips (a small U-Net; `blocks` per level)
       -> a 1x1 head to 8 numbers per cell
@@ -91,7 +90,6 @@ class ConvConfig:
     stride: int = 4  # input pixels per cell side: one Gaussian per stride x stride pixels
     stem: int = 24  # channels of the stem's convs (full resolution: "pixel"; cell resolution: "cell")
     stem_level: str = "pixel"  # where the stem's convs run: "pixel" (full resolution) or "cell"
-    fine: int = 0  # channels of a 3x3 conv at half resolution beside the stem, for detail within a cell (0: none)
     width: int = 64  # channels at cell resolution
     blocks: tuple = (4,)  # residual blocks at the cell level, then at each coarser level (x2)
     mid: int = 0  # channels between a residual block's two convs at the cell level (0: width)
@@ -333,13 +331,6 @@ class ConvGS(nn.Module):
         else:
             raise ValueError(f"unknown stem level {cfg.stem_level!r} (pixel or cell)")
         self.cell_pixels = nn.Conv2d(3 * s * s, c, 1)  # the cell's own pixels, linearly
-        if cfg.fine:  # where an edge lies within a cell: features of each 2 x 2 pixels, zero-initialised
-            if s % 2:
-                raise ValueError("the fine branch needs an even stride")
-            self.fine = nn.Sequential(nn.PixelUnshuffle(2), nn.Conv2d(12, cfg.fine, 3, padding=1), nn.GELU(),
-                                      nn.PixelUnshuffle(s // 2), nn.Conv2d(cfg.fine * s * s // 4, c, 1))
-            nn.init.zeros_(self.fine[-1].weight)
-            nn.init.zeros_(self.fine[-1].bias)
         widths = [c * cfg.widen ** level for level in range(len(cfg.blocks))]
         mids = [(cfg.mid or c) * cfg.widen ** level for level in range(len(cfg.blocks))]
         self.down = nn.ModuleList(nn.Conv2d(a, b, 2, stride=2) for a, b in zip(widths, widths[1:]))
@@ -358,8 +349,7 @@ class ConvGS(nn.Module):
 
     def cell_features(self, x: torch.Tensor) -> torch.Tensor:
         """Input [B, 3, H, W] (normalised) -> the stem's features [B, width, H / stride, W / stride]."""
-        h = self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
-        return h + self.fine(x) if self.cfg.fine else h
+        return self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Input [B, 3, H, W] (normalised) -> cell features [B, width, H / stride, W / stride]."""

@@ -112,8 +112,6 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
             block.b.weight.normal_(0, 0.05)
         if cfg.warp:
             model.warp[-1].weight.normal_(0, 0.3)
-        if cfg.fine:
-            model.fine[-1].weight.normal_(0, 0.1)
     return model.eval()
 
 
@@ -141,12 +139,11 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level,warp,fine", [((2,), "pixel", 0, 0), ((1, 1, 1), "pixel", 0, 0),
-                                                         ((2,), "cell", 0, 0), ((1, 1, 1), "cell", 0, 0),
-                                                         ((2,), "cell", 1.5, 0), ((1,), "pixel", 0, 4)])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, warp, fine):
+@pytest.mark.parametrize("blocks,stem_level,warp", [((2,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((2,), "cell", 0),
+                                                    ((1, 1, 1), "cell", 0), ((2,), "cell", 1.5)])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, warp):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, warp=warp, fine=fine)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, warp=warp)
     model = random_conv(cfg)
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -183,11 +180,11 @@ def test_tiles_give_exactly_one_pass(blocks, stem_level, warp, monkeypatch):
     np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-5 if warp else 2e-6)
 
 
-@pytest.mark.parametrize("stem_level,warp,fine", [("pixel", 0, 0), ("cell", 0, 0), ("cell", 1.5, 8)])
-def test_onnx_matches_torch(tmp_path, stem_level, warp, fine):
+@pytest.mark.parametrize("stem_level,warp", [("pixel", 0), ("cell", 0), ("cell", 1.5)])
+def test_onnx_matches_torch(tmp_path, stem_level, warp):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level, warp=warp, fine=fine))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level, warp=warp))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)
@@ -269,21 +266,3 @@ def test_warp_starts_unwarped_and_moves_the_lattice_smoothly():
     base = ConvGS(ConvConfig(width=8, stem=4)).eval()(frames).detach()
     torch.testing.assert_close(out[..., 0], base[..., 0] + shift, atol=1e-5, rtol=0)
     torch.testing.assert_close(out[..., 1:5], base[..., 1:5], atol=1e-5, rtol=0)  # a shift keeps the spacing
-
-
-def test_fine_branch_starts_at_zero_and_sees_within_the_cell():
-    """The half-resolution branch is zero-initialised (a warm start keeps the network's output); trained,
-    it reads 2 x 2 pixel blocks one block beyond its cell and no further."""
-    torch.manual_seed(0)
-    plain = random_conv(ConvConfig(width=8, stem=4, stem_level="cell"))
-    fine = ConvGS(ConvConfig(width=8, stem=4, stem_level="cell", fine=4)).eval()
-    fine.load_state_dict(plain.state_dict(), strict=False)
-    x = torch.rand(1, 3, 24, 24)
-    with torch.no_grad():
-        torch.testing.assert_close(fine.cell_features(x), plain.cell_features(x))
-        fine.fine[-1].weight.normal_()
-        base = fine.fine(x)[0, :, 2, 2]  # the cell of pixels 8..11
-        for column, changes in ((8 + 4 + 1, True), (8 + 4 + 2, False), (8 - 2, True), (8 - 3, False)):
-            poked = x.clone()
-            poked[..., column] += 1
-            assert bool((fine.fine(poked)[0, :, 2, 2] - base).abs().max() > 1e-6) == changes, column

@@ -6,7 +6,7 @@ from hypergs_blender.commands.cli import main
 
 
 def test_bench_encode_rows_follow_the_layouts():
-    report = bench_encode(backends=("onnx",), counts=(64, 256), presets=("draft",), sizes=("256²", "720p"),
+    report = bench_encode(backends=("onnx",), counts=(64, 256), presets=("draft",), sizes=("256", "720p"),
                           frames=2, large_frames=1, repeats=1)
     rows = {(r["size"], r["setting"]): r for r in report["rows"]}
     assert set(rows) == {("256²", "N = 64"), ("256²", "N = 256"), ("720p", "draft")}
@@ -19,7 +19,7 @@ def test_bench_encode_rows_follow_the_layouts():
 
 def test_bench_encode_command_writes_its_report(tmp_path, capsys):
     out = tmp_path / "encode.json"
-    main(["bench", "encode", "--sizes", "256²", "--gaussians", "64", "--backends", "torch", "--frames", "1",
+    main(["bench", "encode", "--sizes", "256", "--gaussians", "64", "--backends", "torch", "--frames", "1",
           "--repeats", "1", "--threads", "1", "-o", str(out)])
     assert "| 256² | N = 64 | 64 | torch |" in capsys.readouterr().out
     assert json.loads(out.read_text())["settings"]["threads"] == 1

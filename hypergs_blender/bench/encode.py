@@ -8,7 +8,7 @@ from ..encode import QUALITY, encode_frames, frames_layout
 from ..network import resolve_encoder
 from .common import machine_report, timed
 
-FRAME_SIZES = {"256²": (256, 256), "720p": (1280, 720), "1080p": (1920, 1080)}
+FRAME_SIZES = {"256": (256, 256), "720p": (1280, 720), "1080p": (1920, 1080)}
 
 
 def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), presets=("draft", "standard", "high"),
@@ -16,7 +16,8 @@ def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), presets=(
                  threads: int = 0) -> dict:
     """Seconds per frame of each backend: `frames` frames per call at 256 x 256 for each count in
     `counts`, `large_frames` per call at 720p and 1080p for each Quality preset in `presets`; the
-    median of `repeats` calls after one untimed call. threads: torch's and onnxruntime's CPU threads
+    fastest of `repeats` calls after one untimed call (on a shared machine the minimum is the figure
+    that other jobs disturb least). threads: torch's and onnxruntime's CPU threads
     (0: their defaults, one per core)."""
     import torch
 
@@ -49,8 +50,9 @@ def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats
                          else [(preset, dict(cell=QUALITY[preset]["cell"])) for preset in presets])
             for label, density in densities:
                 layout = frames_layout(clip, encoder, **density)
-                seconds = timed(lambda: encode_frames(clip, encoder, layout), repeats, warmup=True)[0] / len(clip)
-                rows.append(dict(backend=backend, size=size, width=width, height=height,
+                seconds = timed(lambda: encode_frames(clip, encoder, layout), repeats, warmup=True,
+                                statistic=min)[0] / len(clip)
+                rows.append(dict(backend=backend, size=f"{size}²" if square else size, width=width, height=height,
                                  setting=f"N = {density['gaussians']}" if label == "N" else label,
                                  gaussians=layout.count, s_per_frame=round(seconds, 4),
                                  frames_per_s=round(1 / seconds, 2)))

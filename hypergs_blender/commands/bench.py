@@ -49,7 +49,7 @@ def _encode(parser):
     from ..bench.encode import FRAME_SIZES
     from ..encode import QUALITY
     parser.add_argument("--sizes", nargs="+", default=list(FRAME_SIZES), choices=list(FRAME_SIZES),
-                        help="frame sizes: 256² at --gaussians, 720p and 1080p at the --presets' densities")
+                        help="frame sizes: 256 (256 x 256) at --gaussians, 720p and 1080p at the --presets' densities")
     parser.add_argument("--gaussians", nargs="+", type=options.gaussian_count, default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--presets", nargs="+", default=list(QUALITY), choices=list(QUALITY))
     parser.add_argument("--backends", nargs="+", default=["torch", "onnx"], choices=["torch", "onnx"])

@@ -14,6 +14,7 @@ def test_bench_encode_rows_follow_the_layouts():
     assert rows[("720p", "draft")]["gaussians"] == 160 * 90  # cells of 8 px
     for r in rows.values():
         assert r["s_per_frame"] > 0 and abs(r["frames_per_s"] * r["s_per_frame"] - 1) < 0.02
+        assert r["cpu_s_per_frame"] > 0
     assert "| 720p | draft | 14,400 | onnx |" in report["table"]
 
 

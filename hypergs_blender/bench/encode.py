@@ -17,7 +17,8 @@ def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), presets=(
     """Seconds per frame of each backend: `frames` frames per call at 256 x 256 for each count in
     `counts`, `large_frames` per call at 720p and 1080p for each Quality preset in `presets`; the
     fastest of `repeats` calls after one untimed call (on a shared machine the minimum is the figure
-    that other jobs disturb least). threads: torch's and onnxruntime's CPU threads
+    that other jobs disturb least), in wall seconds and in this process's CPU seconds (which other jobs
+    barely change; with one thread, the wall time of an idle core). threads: torch's and onnxruntime's CPU threads
     (0: their defaults, one per core)."""
     import torch
 
@@ -36,6 +37,8 @@ def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), presets=(
 
 
 def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats, weights, threads) -> list[dict]:
+    import time
+
     import numpy as np
 
     rng = np.random.default_rng(0)
@@ -50,21 +53,33 @@ def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats
                          else [(preset, dict(cell=QUALITY[preset]["cell"])) for preset in presets])
             for label, density in densities:
                 layout = frames_layout(clip, encoder, **density)
-                seconds = timed(lambda: encode_frames(clip, encoder, layout), repeats, warmup=True,
-                                statistic=min)[0] / len(clip)
+                cpu = []
+
+                def encode():
+                    started = time.process_time()
+                    encode_frames(clip, encoder, layout)
+                    cpu.append(time.process_time() - started)
+                seconds = timed(encode, repeats, warmup=True, statistic=min)[0] / len(clip)
                 rows.append(dict(backend=backend, size=f"{size}²" if square else size, width=width, height=height,
                                  setting=f"N = {density['gaussians']}" if label == "N" else label,
-                                 gaussians=layout.count, s_per_frame=round(seconds, 4),
-                                 frames_per_s=round(1 / seconds, 2)))
+                                 gaussians=layout.count, s_per_frame=significant(seconds),
+                                 cpu_s_per_frame=significant(min(cpu[1:]) / len(clip)),
+                                 frames_per_s=significant(1 / seconds)))
     return rows
+
+
+def significant(x: float, digits: int = 4) -> float:
+    """x to `digits` significant digits (a millisecond frame keeps its precision)."""
+    return float(f"{x:.{digits}g}")
 
 
 def format_encode_table(report: dict) -> str:
     m, s = report["machine"], report["settings"]
     lines = [f"{m.get('date', '?')[:10]}, {m.get('cpu', '?')} ({m.get('cores', '?')} cores, load "
              f"{m.get('load_average_1m', '?')}), {s['threads']} threads",
-             "", "| frames | setting | Gaussians | backend | s/frame | frames/s |", "| --- | --- | --- | --- | --- | --- |"]
+             "", "| frames | setting | Gaussians | backend | s/frame | frames/s | CPU s/frame |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     for r in report["rows"]:
         lines.append(f"| {r['size']} | {r['setting']} | {r['gaussians']:,} | {r['backend']} | {r['s_per_frame']:.3f} | "
-                     f"{r['frames_per_s']:.1f} |")
+                     f"{r['frames_per_s']:.1f} | {r['cpu_s_per_frame']:.3f} |")
     return "\n".join(lines)

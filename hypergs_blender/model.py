@@ -59,7 +59,6 @@ import torch.nn.functional as F
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, grid_anchors
 
 SCALE_EPS = 1e-2
-WARP_POOL = 4  # cells per side of the warp's coarse cells
 
 
 @dataclass
@@ -96,7 +95,6 @@ class ConvConfig:
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
-    warp: float = 0.0  # cells the lattice may move (a smooth, content-adaptive warp; 0: a fixed lattice)
 
     def __post_init__(self):
         self.blocks = tuple(int(b) for b in self.blocks)
@@ -104,8 +102,7 @@ class ConvConfig:
     @property
     def multiple(self) -> int:
         """Input sizes must be multiples of this (the coarsest level's cell)."""
-        levels = self.stride * 2 ** (len(self.blocks) - 1)
-        return math.lcm(levels, self.stride * WARP_POOL) if self.warp else levels
+        return self.stride * 2 ** (len(self.blocks) - 1)
 
     @property
     def reach(self) -> int:
@@ -119,11 +116,6 @@ class ConvConfig:
             radius += (2 * n + 1) * cell  # n blocks of two 3x3 convs, the conv down to (or up from) here
             if level < len(self.blocks) - 1:
                 radius += 2 * cell  # the block on the way back up
-        if self.warp:
-            coarse = self.stride * WARP_POOL
-            # the warp's pooling, 3x3 conv and bilinear upsampling over coarse cells; the finite differences
-            # of its Jacobian; the features and colours sampled up to `warp` cells away
-            radius += 3 * coarse + self.stride * (2 + math.ceil(self.warp))
         return -(-radius // self.multiple) * self.multiple
 
 
@@ -341,11 +333,6 @@ class ConvGS(nn.Module):
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor
         nn.init.zeros_(self.head.bias)
-        if cfg.warp:
-            self.warp = nn.Sequential(nn.AvgPool2d(WARP_POOL), nn.Conv2d(c, c, 3, padding=1), nn.GELU(),
-                                      nn.Conv2d(c, 2, 1))
-            nn.init.zeros_(self.warp[-1].weight)  # start unwarped
-            nn.init.zeros_(self.warp[-1].bias)
 
     def cell_features(self, x: torch.Tensor) -> torch.Tensor:
         """Input [B, 3, H, W] (normalised) -> the stem's features [B, width, H / stride, W / stride]."""
@@ -371,47 +358,20 @@ class ConvGS(nn.Module):
         cfg = self.cfg
         s = cfg.stride
         x = frames.permute(0, 3, 1, 2)
-        features = self.features((x - 0.5) * 2)
-        cell_colour = F.avg_pool2d(x, s)
-        b, _, rows, cols = features.shape
-        ys = torch.arange(rows, dtype=x.dtype, device=x.device) + 0.5  # cell centres, in cells
-        xs = torch.arange(cols, dtype=x.dtype, device=x.device) + 0.5
-        centre_x, centre_y = xs.expand(b, rows, cols), ys[:, None].expand(b, rows, cols)
-        spread = 1.0
-        if cfg.warp:  # move the lattice, and with it where each Gaussian reads its features and colour
-            shift = cfg.warp * torch.tanh(F.interpolate(self.warp(features), scale_factor=float(WARP_POOL),
-                                                        mode="bilinear", align_corners=False))
-            centre_x, centre_y = centre_x + shift[:, 0], centre_y + shift[:, 1]
-            at = torch.stack([centre_x * (2.0 / cols) - 1, centre_y * (2.0 / rows) - 1], -1)
-            features = F.grid_sample(features, at, align_corners=False, padding_mode="border")
-            cell_colour = F.grid_sample(cell_colour, at, align_corners=False, padding_mode="border")
-            spread = lattice_spread(centre_x, centre_y)[:, None]
-        h = self.head(features)  # [B, 8, rows, cols]
+        h = self.head(self.features((x - 0.5) * 2))  # [B, 8, rows, cols]
         height, width = x.shape[-2:]
-        offset = torch.tanh(h[:, 0:2]) * cfg.offset_range
-        mean_x = (centre_x + offset[:, 0]) * (2.0 * s / width) - 1
-        mean_y = (centre_y + offset[:, 1]) * (2.0 * s / height) - 1
+        rows, cols = h.shape[-2:]
+        ys = (torch.arange(rows, dtype=h.dtype, device=h.device) + 0.5) * s
+        xs = (torch.arange(cols, dtype=h.dtype, device=h.device) + 0.5) * s
+        offset = torch.tanh(h[:, 0:2]) * (cfg.offset_range * s)
+        mean_x = (xs[None, :] + offset[:, 0]) * (2.0 / width) - 1
+        mean_y = (ys[:, None] + offset[:, 1]) * (2.0 / height) - 1
         r = cfg.scale_range
-        scale = (INITIAL_SIGMA * s) * spread * torch.exp(r * torch.tanh(h[:, 2:4] / r))
+        scale = (INITIAL_SIGMA * s) * torch.exp(r * torch.tanh(h[:, 2:4] / r))
         rotation = h[:, 4:5] * math.pi
-        colour = COLOUR_GAIN * cell_colour + h[:, 5:8]
+        colour = COLOUR_GAIN * F.avg_pool2d(x, s) + h[:, 5:8]
         params = torch.cat([mean_x[:, None], mean_y[:, None], scale, rotation, colour], 1)
         return params.flatten(2).transpose(1, 2)
-
-
-def lattice_spread(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """The local spacing of a warped lattice [B, rows, cols] of points (x, y) (in cells; 1 unwarped): the
-    square root of its Jacobian's determinant, by central differences (one-sided at the edges: the
-    lattice is extended linearly). A Gaussian's sigma scales with it, so a warped lattice still sums to
-    the image: where the lattice gathers (detail), its Gaussians shrink; where it thins out (flat
-    regions), they grow. At least 2 x 2 points."""
-    def d(v, dim):
-        n = v.shape[dim]
-        first, last = v.narrow(dim, 0, 1), v.narrow(dim, n - 1, 1)
-        extended = torch.cat([2 * first - v.narrow(dim, 1, 1), v, 2 * last - v.narrow(dim, n - 2, 1)], dim)
-        return (extended.narrow(dim, 2, n) - extended.narrow(dim, 0, n)) * 0.5
-    det = d(x, 2) * d(y, 1) - d(x, 1) * d(y, 2)
-    return det.clamp(min=0.05).sqrt()
 
 
 def build_model(config: dict) -> nn.Module:

@@ -9,7 +9,7 @@ import torch
 from hypergs_blender.training.optim import Lamb
 from hypergs_blender.encode import FloorEncoder
 from hypergs_blender.model import (PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs, apply_rope,
-                                   build_model, count_parameters, lattice_spread, model_config, rope_angles)
+                                   build_model, count_parameters, model_config, rope_angles)
 from hypergs_blender.network import torch_encoder
 from hypergs_blender.training.regularizers import AdaptiveRegularizer, effective_rank
 
@@ -110,8 +110,6 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
         model.head.weight.normal_(0, 0.05)
         for block in [b for level in model.encoder for b in level] + list(model.decoder):
             block.b.weight.normal_(0, 0.05)
-        if cfg.warp:
-            model.warp[-1].weight.normal_(0, 0.3)
     return model.eval()
 
 
@@ -139,11 +137,11 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level,warp", [((2,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((2,), "cell", 0),
-                                                    ((1, 1, 1), "cell", 0), ((2,), "cell", 1.5)])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, warp):
+@pytest.mark.parametrize("blocks,stem_level", [((2,), "pixel"), ((1, 1, 1), "pixel"), ((2,), "cell"),
+                                              ((1, 1, 1), "cell")])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, warp=warp)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -160,12 +158,11 @@ def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, warp):
     assert (out_near - base).abs().max() > 1e-6
 
 
-@pytest.mark.parametrize("blocks,stem_level,warp", [((4,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((4,), "cell", 0),
-                                                    ((2,), "cell", 1.5)])
-def test_tiles_give_exactly_one_pass(blocks, stem_level, warp, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level", [((4,), "pixel"), ((1, 1, 1), "pixel"), ((4,), "cell")])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
     import hypergs_blender.network as network
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, warp=warp)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     encoder = torch_encoder(model)
     width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
@@ -176,15 +173,14 @@ def test_tiles_give_exactly_one_pass(blocks, stem_level, warp, monkeypatch):
     assert len(network.tiles(frames.shape[2], cfg.reach, cfg.multiple, encoder.tile)) > 2
     columns, _ = encoder.tile_borders(frames.shape[2], frames.shape[1])
     assert columns and all(c % cfg.multiple == 0 for c in columns)
-    # a warp samples at positions computed on the tile's canvas: the same up to float round-off
-    np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-5 if warp else 2e-6)
+    np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
 
 
-@pytest.mark.parametrize("stem_level,warp", [("pixel", 0), ("cell", 0), ("cell", 1.5)])
-def test_onnx_matches_torch(tmp_path, stem_level, warp):
+@pytest.mark.parametrize("stem_level", ["pixel", "cell"])
+def test_onnx_matches_torch(tmp_path, stem_level):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level, warp=warp))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)
@@ -234,35 +230,3 @@ def test_onnx_session_uses_the_providers_and_threads_asked_for():
     assert encoder.provider == expected == encoder.session.get_providers()[0]
     assert encoder.session.get_session_options().intra_op_num_threads == 1
     assert resolve_encoder("network", "onnx").provider == "CPUExecutionProvider"  # the default
-
-
-def test_lattice_spread_is_the_square_root_of_the_jacobian():
-    ys, xs = torch.meshgrid(torch.arange(6.0) + 0.5, torch.arange(7.0) + 0.5, indexing="ij")
-    torch.testing.assert_close(lattice_spread(xs[None], ys[None]), torch.ones(1, 6, 7))
-    # x' = 1.5 x + 0.2 y, y' = 0.8 y (a shear and two stretches): det = 1.5 x 0.8 everywhere
-    torch.testing.assert_close(lattice_spread((1.5 * xs + 0.2 * ys)[None], (0.8 * ys)[None]),
-                               torch.full((1, 6, 7), math.sqrt(1.2)))
-    # x' = x^2 / 4: dx'/dx = x / 2 inside (central differences are exact for a quadratic), one-sided at the ends
-    spread = lattice_spread((xs ** 2 / 4)[None], ys[None])[0, 0]
-    torch.testing.assert_close(spread[1:-1], (xs[0, 1:-1] / 2).sqrt())
-    assert spread[0] == pytest.approx(math.sqrt((1.5 ** 2 - 0.5 ** 2) / 4))
-
-
-def test_warp_starts_unwarped_and_moves_the_lattice_smoothly():
-    """A zero warp is the fixed lattice (what a warm start from an unwarped network relies on); a trained
-    one moves each Gaussian at most `warp` cells, reads its colour where it went, and scales it with
-    the lattice's local spacing."""
-    torch.manual_seed(0)
-    frames = torch.rand(2, 48, 64, 3)
-    plain = random_conv(ConvConfig(width=8, stem=4))
-    warped = ConvGS(ConvConfig(width=8, stem=4, warp=1.5)).eval()
-    warped.load_state_dict(plain.state_dict(), strict=False)
-    with torch.no_grad():
-        torch.testing.assert_close(warped(frames), plain(frames), atol=2e-6, rtol=0)
-        floor = ConvGS(ConvConfig(width=8, stem=4, warp=1.5)).eval()  # a zero head: the lattice alone
-        floor.warp[-1].bias.copy_(torch.tensor([0.3, 0.0]))  # every point 1.5 tanh(0.3) cells to the right
-        out = floor(frames)
-    shift = 1.5 * math.tanh(0.3) * 4 * 2 / 64  # cells -> canvas units
-    base = ConvGS(ConvConfig(width=8, stem=4)).eval()(frames).detach()
-    torch.testing.assert_close(out[..., 0], base[..., 0] + shift, atol=1e-5, rtol=0)
-    torch.testing.assert_close(out[..., 1:5], base[..., 1:5], atol=1e-5, rtol=0)  # a shift keeps the spacing

@@ -207,9 +207,9 @@ def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         main(argv + ["--config", "heads=4"])  # a transformer's field
     assert "heads not fields of the conv preset's config" in capsys.readouterr().err
-    main(argv + ["--config", "warp=1.5", "stem_level=cell"])
+    main(argv + ["--config", "mid=4", "stem_level=cell"])
     config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
-    assert config["warp"] == 1.5 and config["stem_level"] == "cell" and config["width"] == 8
+    assert config["mid"] == 4 and config["stem_level"] == "cell" and config["width"] == 8
 
 
 def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):

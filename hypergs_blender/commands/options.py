@@ -99,7 +99,7 @@ class ConfigItem(ArgType):
     """FIELD=VALUE: a field of a network config (model.py's dataclasses) and its value, read as JSON (a
     number, a list) or else as text."""
 
-    refused = ("", "warp", "=1", "no_such_field=1")
+    refused = ("", "mid", "=1", "no_such_field=1")
 
     def __call__(self, text: str) -> tuple[str, object]:
         from dataclasses import fields
@@ -118,10 +118,10 @@ class ConfigItem(ArgType):
 
 
 class LrScale(ArgType):
-    """PART=FACTOR: a top-level part of a network (a module name: warp, head, ...; checked when the run
+    """PART=FACTOR: a top-level part of a network (a module name: head, stem, ...; checked when the run
     starts) and a positive learning-rate factor for its parameters."""
 
-    refused = ("", "warp", "warp=", "=3", "warp=0", "warp=-1", "warp=abc", "a.b=2")
+    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a.b=2")
 
     def __call__(self, text: str) -> tuple[str, float]:
         part, sep, value = text.partition("=")

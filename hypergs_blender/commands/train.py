@@ -19,7 +19,7 @@ def add_commands(subparsers) -> None:
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
     p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=options.config_item,
-                   help="override fields of the preset's config for a new run, e.g. warp=1.5 stem=128")
+                   help="override fields of the preset's config for a new run, e.g. mid=32 stem=128")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
                    help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
                         "the tensors whose name and shape the network has (new parts keep their initialisation)")
@@ -41,7 +41,7 @@ def add_commands(subparsers) -> None:
                    help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
     p.add_argument("--lr-scale", nargs="+", default=[], metavar="PART=FACTOR", type=options.lr_scale,
                    help="conv, a new run: the learning rate of a top-level part of the network times FACTOR, "
-                        "e.g. warp=30 (a new head that starts at zero)")
+                        "e.g. stem=3 (a new stem on warm-started blocks)")
     p.add_argument("--clip", type=options.positive_float, default=None,
                    help="gradient norm clipping (conv 0.5, transformer 1.0)")
     p.add_argument("--warmup", type=options.non_negative_int, default=200)

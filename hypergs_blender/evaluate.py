@@ -1,6 +1,7 @@
 """Quality and speed of encode -> render against the source frames (what `hypergs eval` reports):
 PSNR / SSIM / MS-SSIM, the floors every model must clear, the artefact checks (seams at tile borders,
-a lattice in flat regions, dark frame edges), and timings."""
+a lattice in flat regions, dark frame edges), the temporal figures (on consecutive frames: the PSNR of
+the frame differences, the change where the source is still), and timings."""
 from __future__ import annotations
 
 import time
@@ -9,7 +10,7 @@ import numpy as np
 
 from . import metrics
 from .encode import EncodeSettings, encode_frames, frames_layout
-from .io.frames import read_frames
+from .io.frames import probe, read_frames
 from .render import render_params
 
 
@@ -26,10 +27,16 @@ def bilinear_floor_psnr(frames: np.ndarray, n: int) -> float:
     return float(np.mean(metrics.psnr(up.permute(0, 2, 3, 1).numpy(), frames / np.float32(255))))
 
 
-def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None = None) -> np.ndarray:
-    """`frames` frames spread over the video: short-side resized and centre-cropped to size x size,
-    or (crop) a crop x crop centre crop at the video's own resolution, or (neither) whole frames."""
-    source, _, _ = read_frames(path, frames, size=size)
+def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None = None,
+                     consecutive: bool = False) -> np.ndarray:
+    """`frames` frames spread over the video (consecutive: `frames` consecutive frames from the middle
+    of the video): short-side resized and centre-cropped to size x size, or (crop) a crop x crop centre
+    crop at the video's own resolution, or (neither) whole frames."""
+    if consecutive:
+        start = max(0, (probe(path).num_frames - frames) // 2)
+        source, _, _ = read_frames(path, None, start, start + frames, size=size)
+    else:
+        source, _, _ = read_frames(path, frames, size=size)
     if crop:
         h, w = source.shape[1:3]
         y0, x0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
@@ -41,12 +48,7 @@ def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> di
     """Encode uint8 frames [T, H, W, 3] with `settings`, render them at H x W, and measure."""
     t, h, w = source.shape[:3]
     layout = settings.layout(w, h, encoder)
-    started = time.perf_counter()
-    params = encode_frames(source, encoder, layout, settings.refine)
-    encode_seconds = time.perf_counter() - started
-    started = time.perf_counter()
-    rendered = render_params(params, w, h, w, h)
-    decode_seconds = time.perf_counter() - started
+    rendered, encode_seconds, decode_seconds = encode_render(source, encoder, layout, settings.refine)
     target = source / np.float32(255)
     xs, ys = encoder.tile_borders(layout.work_width, layout.work_height)
     sx, sy = w / layout.work_width, h / layout.work_height
@@ -62,10 +64,39 @@ def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> di
                 encode_fps=t / encode_seconds, decode_fps=t / decode_seconds)
 
 
+def encode_render(source: np.ndarray, encoder, layout, refine: int = 0) -> tuple[np.ndarray, float, float]:
+    """Encode uint8 frames [T, H, W, 3] on `layout` (refined `refine` steps) and render them at H x W:
+    (renders float32 [T, H, W, 3], unclipped; encode seconds; render seconds)."""
+    h, w = source.shape[1:3]
+    started = time.perf_counter()
+    params = encode_frames(source, encoder, layout, refine)
+    encode_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    rendered = render_params(params, w, h, w, h)
+    return rendered, encode_seconds, time.perf_counter() - started
+
+
+def evaluate_temporal(source: np.ndarray, encoder, settings: EncodeSettings) -> dict:
+    """Temporal figures of consecutive uint8 frames [T, H, W, 3] (T >= 2): the PSNR of the frame
+    differences (metrics.delta_psnr) next to the per-frame PSNR of the same frames, and the render's
+    change where the source is still (metrics.still_change)."""
+    h, w = source.shape[1:3]
+    rendered, _, _ = encode_render(source, encoder, settings.layout(w, h, encoder), settings.refine)
+    target = source / np.float32(255)
+    return dict(frames=len(source), psnr=float(np.mean(metrics.psnr(rendered, target))),
+                delta_psnr=metrics.delta_psnr(rendered, target), still_change=metrics.still_change(rendered, target))
+
+
 def evaluate_video(path, encoder, settings: EncodeSettings, size: int | None = 256, crop: int | None = None,
-                   frames: int = 8) -> dict:
-    source = read_eval_frames(path, frames, size, crop)
-    return dict(video=str(path), **evaluate_frames(source, encoder, settings))
+                   frames: int = 8, temporal_frames: int = 8) -> dict:
+    """evaluate_frames on `frames` frames spread over the video, and (temporal_frames >= 2)
+    evaluate_temporal on that many consecutive frames from its middle."""
+    result = dict(video=str(path), **evaluate_frames(read_eval_frames(path, frames, size, crop), encoder, settings))
+    if temporal_frames >= 2:
+        run = read_eval_frames(path, temporal_frames, size, crop, consecutive=True)
+        if len(run) >= 2:
+            result["temporal"] = evaluate_temporal(run, encoder, settings)
+    return result
 
 
 def warm_up(encoder) -> None:

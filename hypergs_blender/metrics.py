@@ -1,4 +1,5 @@
-"""Image quality metrics on RGB frames in [0, 1], shape [..., H, W, 3] (numpy or torch).
+"""Image quality metrics on RGB frames in [0, 1], shape [..., H, W, 3] (numpy or torch), the artefact
+checks and the temporal figures.
 
 PSNR is plain numpy (the Blender side needs it without torch); SSIM and MS-SSIM come from
 pytorch-msssim (Gaussian window 11, sigma 1.5, the standard constants)."""
@@ -93,6 +94,31 @@ def edge_bias(pred, target, band: int = 6) -> float:
     border = np.ones((h, w), bool)
     border[band:h - band, band:w - band] = False
     return float(err[:, border].mean() - err[:, ~border].mean())
+
+
+# ---- temporal behaviour: consecutive frames [T, H, W, 3], T >= 2 -----------------------------------------
+
+def delta_psnr(pred, target) -> float:
+    """PSNR of the frame differences (render t+1 - render t against source t+1 - source t), peak 1,
+    averaged over the pairs: how faithfully the render changes from frame to frame. An error that stays
+    from frame to frame costs nothing here, one that changes (flicker) does."""
+    pred, target = np.clip(_numpy(pred), 0, 1).astype(np.float64), _numpy(target).astype(np.float64)
+    mse = np.mean((np.diff(pred, axis=0) - np.diff(target, axis=0)) ** 2, axis=(-3, -2, -1))
+    with np.errstate(divide="ignore"):
+        return float(np.mean(-10 * np.log10(mse)))
+
+
+def still_change(pred, target, still: float = 2.0) -> dict:
+    """Where the source is still between consecutive frames (every channel changes by less than `still`
+    /255), the mean absolute change of the render and of the source there, in 1/255 units, and the
+    fraction of pixels that are still: the flicker a viewer sees on what does not move."""
+    pred, target = np.clip(_numpy(pred), 0, 1), _numpy(target)
+    source = np.abs(np.diff(target, axis=0)) * 255
+    render = np.abs(np.diff(pred, axis=0)) * 255
+    mask = (source < still).all(-1)
+    if not mask.any():
+        return {"fraction": 0.0, "source": None, "render": None}
+    return {"fraction": float(mask.mean()), "source": float(source[mask].mean()), "render": float(render[mask].mean())}
 
 
 def _per_frame(fn, pred, target, **kwargs) -> np.ndarray:

@@ -7,8 +7,10 @@ its input. The input is the frame resized to the working size at which each cell
 and more Gaussians always see more of the frame. Per frame:
 
     frame [B, H, W, 3]
-      -> two 3x3 convs at full resolution, a stride x stride conv down to one feature per cell,
-         plus a linear map of the cell's own pixels (pixel-unshuffle)
+      -> a stem to one feature per cell (`stem_level`): "pixel": two 3x3 convs at full resolution
+         and a stride x stride conv down to the cells; "cell": a 3x3 conv over the cells' pixels
+         (pixel-unshuffle), a GELU and a 1x1 conv, all at cell resolution (~5x cheaper: the
+         full-resolution convs are memory-bound) -- plus a linear map of the cell's own pixels
       -> residual 3x3 blocks at cell resolution, then at coarser levels (x2 each, for context) and
          back up with skips (a small U-Net; `blocks` per level)
       -> a 1x1 head to 8 numbers per cell
@@ -85,9 +87,11 @@ class TransformerConfig:
 class ConvConfig:
     arch: str = "conv"
     stride: int = 4  # input pixels per cell side: one Gaussian per stride x stride pixels
-    stem: int = 24  # channels of the full-resolution convs
+    stem: int = 24  # channels of the stem's convs (full resolution: "pixel"; cell resolution: "cell")
+    stem_level: str = "pixel"  # where the stem's convs run: "pixel" (full resolution) or "cell"
     width: int = 64  # channels at cell resolution
     blocks: tuple = (4,)  # residual blocks at the cell level, then at each coarser level (x2)
+    mid: int = 0  # channels between a residual block's two convs at the cell level (0: width)
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
@@ -105,7 +109,8 @@ class ConvConfig:
         """Input pixels beyond which a pixel cannot change a cell's Gaussian: an upper bound of the
         receptive field's radius, rounded up to `multiple`. Tiles that overlap by this much encode
         exactly as one pass does."""
-        radius = 2 + self.stride  # the two full-resolution convs, and the conv down to the cell
+        # the stem: two full-resolution 3x3 convs and the conv down to the cell, or one 3x3 conv over cells
+        radius = 2 + self.stride if self.stem_level == "pixel" else 2 * self.stride
         for level, n in enumerate(self.blocks):
             cell = self.stride * 2 ** level
             radius += (2 * n + 1) * cell  # n blocks of two 3x3 convs, the conv down to (or up from) here
@@ -116,6 +121,7 @@ class ConvConfig:
 
 PRESETS = {
     "conv": ConvConfig(),
+    "conv-cell": ConvConfig(stem=96, stem_level="cell"),
     "small": TransformerConfig(),
     "paper": TransformerConfig(canvas=256, patch=16, clip_frames=8, temporal_window=4, dim=768, heads=12, ffn=2800,
                          st_layers=2, q_layers=4, parametrization="paper", max_gaussians=1000),
@@ -287,12 +293,14 @@ class HyperGS(nn.Module):
 
 
 class ResBlock(nn.Module):
-    """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity)."""
+    """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity);
+    `mid` channels between the two convs (default: as many as outside)."""
 
-    def __init__(self, channels: int):
+    def __init__(self, channels: int, mid: int = 0):
         super().__init__()
-        self.a = nn.Conv2d(channels, channels, 3, padding=1)
-        self.b = nn.Conv2d(channels, channels, 3, padding=1)
+        mid = mid or channels
+        self.a = nn.Conv2d(channels, mid, 3, padding=1)
+        self.b = nn.Conv2d(mid, channels, 3, padding=1)
         nn.init.zeros_(self.b.weight)
         nn.init.zeros_(self.b.bias)
 
@@ -305,22 +313,34 @@ class ConvGS(nn.Module):
         super().__init__()
         self.cfg = cfg
         s, c = cfg.stride, cfg.width
-        self.stem = nn.Sequential(nn.Conv2d(3, cfg.stem, 3, padding=1), nn.GELU(),
-                                  nn.Conv2d(cfg.stem, cfg.stem, 3, padding=1), nn.GELU())
-        self.to_cell = nn.Conv2d(cfg.stem, c, s, stride=s)
+        if cfg.stem_level == "pixel":
+            self.stem = nn.Sequential(nn.Conv2d(3, cfg.stem, 3, padding=1), nn.GELU(),
+                                      nn.Conv2d(cfg.stem, cfg.stem, 3, padding=1), nn.GELU())
+            self.to_cell = nn.Conv2d(cfg.stem, c, s, stride=s)
+        elif cfg.stem_level == "cell":
+            self.stem = nn.Sequential(nn.PixelUnshuffle(s), nn.Conv2d(3 * s * s, cfg.stem, 3, padding=1), nn.GELU())
+            self.to_cell = nn.Conv2d(cfg.stem, c, 1)
+        else:
+            raise ValueError(f"unknown stem level {cfg.stem_level!r} (pixel or cell)")
         self.cell_pixels = nn.Conv2d(3 * s * s, c, 1)  # the cell's own pixels, linearly
         widths = [c * cfg.widen ** level for level in range(len(cfg.blocks))]
+        mids = [(cfg.mid or c) * cfg.widen ** level for level in range(len(cfg.blocks))]
         self.down = nn.ModuleList(nn.Conv2d(a, b, 2, stride=2) for a, b in zip(widths, widths[1:]))
-        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w) for _ in range(n))) for w, n in zip(widths, cfg.blocks))
+        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w, m) for _ in range(n)))
+                                     for w, m, n in zip(widths, mids, cfg.blocks))
         self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
-        self.decoder = nn.ModuleList(ResBlock(w) for w in widths[:-1])
+        self.decoder = nn.ModuleList(ResBlock(w, m) for w, m in zip(widths[:-1], mids))
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor
         nn.init.zeros_(self.head.bias)
 
+    def cell_features(self, x: torch.Tensor) -> torch.Tensor:
+        """Input [B, 3, H, W] (normalised) -> the stem's features [B, width, H / stride, W / stride]."""
+        return self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
+
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Input [B, 3, H, W] (normalised) -> cell features [B, width, H / stride, W / stride]."""
-        h = self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
+        h = self.cell_features(x)
         skips = []
         for level, blocks in enumerate(self.encoder):
             if level:

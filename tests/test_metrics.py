@@ -74,3 +74,66 @@ def test_tiled_network_has_no_seams():
     frames = (smooth_frames(2, 120, 320) * 255).astype(np.uint8)
     result = evaluate_frames(frames, encoder, EncodeSettings(cell=4))
     assert result["tiles"][0] > 2 and result["seam_ratio"] == pytest.approx(1.0, abs=0.2)
+
+
+# ---- temporal figures -------------------------------------------------------------------------------
+
+def test_delta_psnr_matches_a_loop_over_frame_pairs():
+    rng = np.random.default_rng(2)
+    target = smooth_frames(t=4).astype(np.float64)
+    pred = np.clip(target + rng.normal(0, 0.03, target.shape), 0, 1)
+    expected = np.mean([10 * np.log10(1 / np.mean(((pred[i + 1] - pred[i]) - (target[i + 1] - target[i])) ** 2))
+                        for i in range(3)])
+    assert metrics.delta_psnr(pred, target) == pytest.approx(expected, abs=1e-9)
+
+
+def test_delta_psnr_forgives_a_steady_error_and_sees_flicker():
+    target = smooth_frames(t=4)
+    steady = target + 0.05  # the same error in every frame: the changes are exact (to float32 round-off)
+    assert metrics.delta_psnr(steady, target) > 120
+    flicker = target + 0.01 * np.array([1, -1, 1, -1], np.float32)[:, None, None, None]
+    assert metrics.delta_psnr(flicker, target) == pytest.approx(-20 * np.log10(0.02), abs=1e-3)  # |change| 0.02
+
+
+def test_still_change_measures_flicker_where_the_source_is_still():
+    target = np.zeros((3, 32, 32, 3), np.float32) + 0.5
+    target[1:, :, 16:] = 0.9  # the right half changes after the first frame; the left half never does
+    pred = target.copy()
+    pred[1, :, :16] += 3 / 255  # the still left half flickers by 3 code values in frame 1 (so in both pairs)
+    change = metrics.still_change(pred, target)
+    # still: the left half in both pairs, the right half in the second pair -> 3/4 of the pixels
+    assert change["fraction"] == pytest.approx(0.75)
+    assert change["source"] == pytest.approx(0.0, abs=1e-6)
+    assert change["render"] == pytest.approx(3 * 2 / 3, abs=1e-4)  # 3/255 on two of the three still halves
+    assert metrics.still_change(pred, target * 0 + np.arange(3)[:, None, None, None] / 2)["render"] is None
+
+
+def test_eval_reports_temporal_figures(moving_video):
+    from hypergs_blender.evaluate import evaluate_video
+    result = evaluate_video(moving_video, FloorEncoder(), EncodeSettings(cell=4), size=None, frames=4, temporal_frames=5)
+    temporal = result["temporal"]
+    assert temporal["frames"] == 5
+    assert 15 < temporal["delta_psnr"] < 60 and 15 < temporal["psnr"] < 60
+    assert temporal["still_change"]["fraction"] > 0.5 and temporal["still_change"]["render"] > 0  # near the square
+    assert "temporal" not in evaluate_video(moving_video, FloorEncoder(), EncodeSettings(cell=4), size=None, frames=2, temporal_frames=0)
+
+
+def test_a_still_clip_renders_still():
+    from hypergs_blender.evaluate import evaluate_temporal
+    frames = np.repeat((smooth_frames(t=1) * 255).astype(np.uint8), 3, axis=0)
+    temporal = evaluate_temporal(frames, FloorEncoder(), EncodeSettings(cell=4))
+    assert temporal["delta_psnr"] == np.inf
+    assert temporal["still_change"] == {"fraction": 1.0, "source": 0.0, "render": 0.0}
+
+
+def test_eval_command_reports_the_temporal_means(moving_video, capsys):
+    import json
+    from hypergs_blender.commands.cli import main
+    main(["eval", str(moving_video), str(moving_video), "--encoder", "floor", "--full", "--cell", "4", "--frames", "2",
+          "--temporal-frames", "4", "--json"])
+    report = json.loads(capsys.readouterr().out)
+    video = report["videos"][0]["temporal"]
+    assert report["temporal_frames"] == 4 and video["frames"] == 4
+    mean = report["mean"]["temporal"]
+    assert mean["delta_psnr"] == pytest.approx(video["delta_psnr"])
+    assert mean["still_change"] == pytest.approx(video["still_change"])

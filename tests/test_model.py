@@ -1,5 +1,6 @@
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -112,17 +113,35 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
     return model.eval()
 
 
-def test_conv_model_starts_at_the_grid_floor():
+@pytest.mark.parametrize("preset", ["conv", "conv-cell"])
+def test_conv_model_starts_at_the_grid_floor(preset):
     frames = np.random.default_rng(0).random((2, 24, 40, 3), dtype=np.float32)
     with torch.no_grad():
-        out = ConvGS(ConvConfig()).eval()(torch.from_numpy(frames)).numpy()
+        out = ConvGS(PRESETS[preset]).eval()(torch.from_numpy(frames)).numpy()
     np.testing.assert_allclose(out, FloorEncoder().predict(frames), atol=1e-5)
 
 
-@pytest.mark.parametrize("blocks", [(2,), (1, 1, 1)])
-def test_conv_reach_bounds_the_receptive_field(blocks):
+def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
+    """The cell stem is one 3x3 conv over cells: a cell's stem feature depends on its own pixels and
+    its 8 neighbours' (a pixel two cells away changes nothing); the 'pixel' stem's reaches 2 pixels
+    past the cell."""
+    for stem_level, inside, outside in (("cell", 4 + 3, 4 + 4), ("pixel", 4 + 1, 4 + 2)):
+        model = random_conv(ConvConfig(width=8, stem=4, stem_level=stem_level))
+        x = torch.rand(1, 3, 24, 24)
+        with torch.no_grad():
+            base = model.cell_features(x)[0, :, 2, 2]  # the cell of pixels 8..11
+            for column, changes in ((8 + inside, True), (8 + outside, False)):
+                poked = x.clone()
+                poked[..., column] += 1
+                moved = (model.cell_features(poked)[0, :, 2, 2] - base).abs().max() > 1e-6
+                assert bool(moved) == changes, (stem_level, column)
+
+
+@pytest.mark.parametrize("blocks,stem_level", [((2,), "pixel"), ((1, 1, 1), "pixel"), ((2,), "cell"),
+                                              ((1, 1, 1), "cell")])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -139,11 +158,11 @@ def test_conv_reach_bounds_the_receptive_field(blocks):
     assert (out_near - base).abs().max() > 1e-6
 
 
-@pytest.mark.parametrize("blocks", [(4,), (1, 1, 1)])
-def test_tiles_give_exactly_one_pass(blocks, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level", [((4,), "pixel"), ((1, 1, 1), "pixel"), ((4,), "cell")])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
     import hypergs_blender.network as network
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
     model = random_conv(cfg)
     encoder = torch_encoder(model)
     width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
@@ -157,14 +176,15 @@ def test_tiles_give_exactly_one_pass(blocks, monkeypatch):
     np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
 
 
-def test_onnx_matches_torch(tmp_path):
+@pytest.mark.parametrize("stem_level", ["pixel", "cell"])
+def test_onnx_matches_torch(tmp_path, stem_level):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,)))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)
-    for shape in ((3, 32, 32, 3), (1, 40, 96, 3)):  # one exported graph serves any size, hence any count
+    for shape in ((3, 32, 32, 3), (1, 48, 96, 3)):  # one exported graph serves any size, hence any count
         frames = rng.random(shape, dtype=np.float32)
         a, b = onnx.predict(frames), torch_.predict(frames)
         assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
@@ -173,6 +193,35 @@ def test_onnx_matches_torch(tmp_path):
     torch_.release()
     np.testing.assert_array_equal(onnx.predict(frames), a)
     assert not onnx.session.get_session_options().enable_mem_pattern
+
+
+def test_the_bundled_onnx_model_is_the_bundled_weights():
+    """What Blender runs (hypergs.onnx, onnxruntime) gives the Gaussians that the bundled .safetensors give in
+    torch on a real frame: the ONNX file was exported from these weights, at ONNX_OPSET (GELU as one op).
+    Float32 sums in another order differ by ~5e-6 (canvas units, scales in cells); other weights by > 1e-2."""
+    import onnx
+
+    from hypergs_blender.io.frames import read_frames
+    from hypergs_blender.network import WEIGHTS_DIR, resolve_encoder
+    from hypergs_blender.training.export import ONNX_OPSET
+    graph = onnx.load(str(WEIGHTS_DIR / "hypergs.onnx"))
+    assert [(o.domain, o.version) for o in graph.opset_import] == [("", ONNX_OPSET)]
+    assert "Gelu" in {node.op_type for node in graph.graph.node}
+    frames, _, _ = read_frames(Path(__file__).resolve().parents[1] / "hypergs_blender" / "samples" / "sample.mp4", 2)
+    frames = (frames[:, :frames.shape[1] // 4 * 4, :frames.shape[2] // 4 * 4] / 255).astype(np.float32)
+    onnx_params = resolve_encoder("network", "onnx", threads=1).predict(frames)
+    torch_params = resolve_encoder("network", "torch", device="cpu").predict(frames)
+    assert onnx_params.shape == (2, frames.shape[1] * frames.shape[2] // 16, 8)
+    np.testing.assert_allclose(onnx_params, torch_params, atol=2e-5, rtol=0)
+
+
+def test_onnx_graph_has_gelu_as_one_op(tmp_path):
+    import onnx
+
+    from hypergs_blender.training.export import export_onnx
+    export_onnx(random_conv(ConvConfig(width=16, stem=8, blocks=(2,))), tmp_path / "m.onnx")
+    ops = [node.op_type for node in onnx.load(tmp_path / "m.onnx").graph.node]
+    assert ops.count("Gelu") == 2 + 2 * 2 and "Erf" not in ops  # the stem's two, two per block
 
 
 def test_onnx_session_uses_the_providers_and_threads_asked_for():

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from hypergs_blender.commands import train as train_commands
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.metrics import psnr_from_mse
 from hypergs_blender.render import render_torch
 from hypergs_blender.training import train
@@ -118,3 +119,113 @@ def test_evaluator_encodes_as_the_runtime_does(tmp_path):
         layout = frames_layout(frames, FloorEncoder(), cell=cell)
         floor = render_params(encode_frames(frames, FloorEncoder(), layout), 256, 256, 256, 256)
         assert results[f"val_n{n}"] == pytest.approx(float(np.mean(psnr(floor, frames / 255))), abs=0.01)
+
+
+def test_warm_start_takes_what_fits_and_keeps_new_parts_at_initialisation(tmp_path, capsys):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    with torch.no_grad():
+        for p in teacher.parameters():
+            p.normal_()
+    save_weights(teacher, tmp_path, "teacher")
+    student = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,), stem_level="cell"))
+    fresh = {k: v.clone() for k, v in student.state_dict().items()}
+    train.warm_start(student, tmp_path / "teacher.safetensors")
+    assert "kept at initialisation: stem.1.bias, stem.1.weight, to_cell.weight" in capsys.readouterr().out
+    for k, v in student.state_dict().items():
+        expected = fresh[k] if k.startswith(("stem.", "to_cell.")) and k != "to_cell.bias" else teacher.state_dict()[k]
+        torch.testing.assert_close(v, expected, rtol=0, atol=0, msg=k)
+
+
+def test_warm_start_prunes_the_least_important_middle_channels(tmp_path, capsys):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    block = teacher.encoder[0][0]
+    with torch.no_grad():
+        block.b.weight.normal_()
+        block.a.weight[[1, 4, 6]] *= 10  # the three middle channels that matter most
+    save_weights(teacher, tmp_path, "teacher")
+    student = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,), mid=3))
+    train.warm_start(student, tmp_path / "teacher.safetensors")
+    assert "kept at initialisation" not in capsys.readouterr().out  # every tensor came from the teacher
+    pruned = student.encoder[0][0]
+    torch.testing.assert_close(pruned.a.weight, block.a.weight[[1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.a.bias, block.a.bias[[1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.b.weight, block.b.weight[:, [1, 4, 6]], rtol=0, atol=0)
+    torch.testing.assert_close(pruned.b.bias, block.b.bias, rtol=0, atol=0)
+
+
+def test_distill_trains_all_but_the_head_towards_the_teachers_features(tmp_path, monkeypatch):
+    from hypergs_blender.training.export import save_weights
+    torch.manual_seed(0)
+    teacher = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    with torch.no_grad():
+        teacher.head.weight.normal_(0, 0.05)
+        teacher.encoder[0][0].b.weight.normal_(0, 0.05)
+    save_weights(teacher, tmp_path, "teacher")
+    monkeypatch.setitem(train.PRESETS, "conv-cell", ConvConfig(width=8, stem=16, blocks=(1,), stem_level="cell"))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    args = training_args(tmp_path / "run", 30, "conv-cell")
+    args.init_from = args.distill = tmp_path / "teacher.safetensors"
+    args.lr = 1e-2
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
+    own = teacher.state_dict()
+    for k, v in state.items():
+        same = k in own and own[k].shape == v.shape and torch.equal(own[k], v)
+        assert same == k.startswith("head."), k  # the head is kept; the rest learns
+    records = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    unexplained = [r["unexplained"] for r in records if "unexplained" in r]
+    assert len(unexplained) == 30 and np.mean(unexplained[-5:]) < 0.7 * np.mean(unexplained[:5])
+    with pytest.raises(Exception, match="--distill needs --init-from"):
+        args.init_from = None
+        train.run(args)
+
+
+def test_input_noise_is_reproducible_bounded_and_eight_bit():
+    frames = torch.full((4, 1, 16, 16, 3), 0.5)
+    a, b = train.with_noise(frames, 2.0, 7, 3, 0), train.with_noise(frames, 2.0, 7, 3, 0)
+    torch.testing.assert_close(a, b, rtol=0, atol=0)  # a pure function of (seed, step, rank): resume is exact
+    assert not torch.equal(a, train.with_noise(frames, 2.0, 7, 4, 0))
+    codes = a * 255
+    torch.testing.assert_close(codes, codes.round(), rtol=0, atol=1e-4)
+    stds = (a - 0.5).reshape(4, -1).std(1) * 255
+    assert float(stds.max()) < 2.0 * 1.25 and float(stds.max()) > 0.3
+
+
+def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
+    from hypergs_blender.commands.cli import main
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    argv = ["train", "--out", str(tmp_path / "run"), "--data", "procedural:1", "--steps", "1", "--batch", "1",
+            "--size", "32", "--warmup", "1"]
+    with pytest.raises(SystemExit):
+        main(argv + ["--config", "wrap=1.5"])
+    assert "'wrap' is not a network config field" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(argv + ["--config", "heads=4"])  # a transformer's field
+    assert "heads not fields of the conv preset's config" in capsys.readouterr().err
+    main(argv + ["--config", "mid=4", "stem_level=cell"])
+    config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
+    assert config["mid"] == 4 and config["stem_level"] == "cell" and config["width"] == 8
+
+
+def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
+    args = training_args(tmp_path / "run", 4, "conv")
+    args.lr_scale = {"head": 30.0}
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    rest, head = sorted(state["optimizer"]["param_groups"], key=lambda group: group["lr_scale"])
+    assert (rest["lr_scale"], head["lr_scale"]) == (1.0, 30.0)
+    assert len(head["params"]) == 2  # the head's weight and bias
+    assert head["lr"] == pytest.approx(30 * rest["lr"]) and rest["lr"] > 0
+    args = training_args(tmp_path / "run", 6, "conv")  # a resume keeps the groups the run started with
+    train.run(args)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert int(state["step"]) == 6 and len(state["optimizer"]["param_groups"]) == 2
+    args = training_args(tmp_path / "other", 2, "conv")
+    args.lr_scale = {"wrap": 3.0}
+    with pytest.raises(HyperGSError, match="wrap not parts of this network"):
+        train.run(args)

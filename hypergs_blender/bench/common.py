@@ -27,9 +27,10 @@ DEFAULT_CRFS = (18, 23, 28, 33, 38, 43, 48, 51)  # up to x265's maximum: ours ca
 BOUND_TEXT = {"=": "", "<=": "≤ ", ">=": "≥ ", None: ""}  # how an interpolated figure's bound is printed
 
 
-def timed(fn, repeats: int = 1, warmup: bool = False, sync=None):
-    """(median wall seconds of fn() over `repeats` calls, the last call's result); `warmup` runs it
-    once first, untimed; `sync()` (a device synchronisation) is called before each clock reading."""
+def timed(fn, repeats: int = 1, warmup: bool = False, sync=None, statistic=statistics.median):
+    """(`statistic` of the wall seconds of fn() over `repeats` calls, default the median; the last call's
+    result); `warmup` runs it once first, untimed; `sync()` (a device synchronisation) is called before
+    each clock reading."""
     if warmup:
         fn()
         if sync:
@@ -41,7 +42,7 @@ def timed(fn, repeats: int = 1, warmup: bool = False, sync=None):
         if sync:
             sync()
         times.append(time.perf_counter() - started)
-    return statistics.median(times), result
+    return statistic(times), result
 
 
 def machine_report(device: str = "cpu") -> dict:

@@ -46,13 +46,26 @@ def _raster(parser):
 
 
 def _encode(parser):
-    parser.add_argument("--frames", type=options.frame_count, default=8)
-    parser.add_argument("--size", type=options.image_side, default=256)
+    from ..bench.encode import FRAME_SIZES
+    from ..encode import QUALITY
+    parser.add_argument("--sizes", nargs="+", default=list(FRAME_SIZES), choices=list(FRAME_SIZES),
+                        help="frame sizes: 256 (256 x 256) at --gaussians, 720p and 1080p at the --presets' densities")
+    parser.add_argument("--gaussians", nargs="+", type=options.gaussian_count, default=list(DEFAULT_GAUSSIANS))
+    parser.add_argument("--presets", nargs="+", default=list(QUALITY), choices=list(QUALITY))
+    parser.add_argument("--backends", nargs="+", default=["torch", "onnx"], choices=["torch", "onnx"])
+    parser.add_argument("--frames", type=options.frame_count, default=8, help="frames per call at 256²")
+    parser.add_argument("--large-frames", type=options.frame_count, default=2, help="frames per call at 720p and 1080p")
+    parser.add_argument("--repeats", type=options.positive_int, default=3)
+    parser.add_argument("--threads", type=options.non_negative_int, default=0,
+                        help="torch and onnxruntime CPU threads (0: one per core)")
     parser.add_argument("--weights", default=None, type=options.input_folder)
+    parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
+                        help="also write the JSON report here")
 
     def run(args):
         from ..bench.encode import bench_encode
-        return bench_encode(frames=args.frames, size=args.size, weights=args.weights)
+        return write_report(bench_encode(args.backends, args.gaussians, args.presets, args.sizes, args.frames,
+                                         args.large_frames, args.repeats, args.weights, args.threads), args.output)
     return run
 
 
@@ -238,7 +251,8 @@ def _plots(parser):
 # name -> (help, function adding the options and returning `args -> report dict`)
 BENCH_COMMANDS = {
     "raster": ("rasterizer frames/s: numba / torch paths, numpy-only path, dense reference", _raster),
-    "encode": ("network encode clips/s and frames/s (torch and onnxruntime) for N in {250, 1000, 3000}", _encode),
+    "encode": ("network encode s/frame (torch and onnxruntime): 256² at N in {250, 1000, 3000}, 720p and 1080p at "
+               "the Quality presets", _encode),
     "codec": (".hgs rate-distortion at 8/6/4 bits next to x265 (bpp, PSNR, frames/s)", _codec),
     "vs-fit": ("feedforward vs feedforward + refine vs per-frame fitting: PSNR, s/frame, ratio at matched PSNR",
                _vs_fit),

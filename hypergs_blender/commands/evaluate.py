@@ -1,4 +1,5 @@
-"""`hypergs eval`: PSNR / SSIM / MS-SSIM of encode -> render against the source frames, with timings."""
+"""`hypergs eval`: PSNR / SSIM / MS-SSIM of encode -> render against the source frames, artefact checks,
+temporal figures and timings."""
 from __future__ import annotations
 
 import json
@@ -24,6 +25,8 @@ def add_commands(subparsers) -> None:
     frames.add_argument("--native", action="store_true", help="centre crop at the video's own short side")
     frames.add_argument("--full", action="store_true", help="whole frames at the video's own resolution")
     p.add_argument("--frames", type=options.frame_count, default=8, help="frames sampled uniformly from each video")
+    p.add_argument("--temporal-frames", type=options.non_negative_int, default=8,
+                   help="consecutive frames from the middle of each video for the temporal figures (0: none)")
     p.add_argument("--tile", type=options.positive_int, default=None,
                    help="network tile size in working pixels (tests seams)")
     p.add_argument("--json", action="store_true")
@@ -41,7 +44,8 @@ def run(args) -> None:
     rows = []
     for video in args.videos:
         crop = args.crop or (min(probe(video).width, probe(video).height) if args.native else None)
-        rows.append(evaluate_video(video, encoder, settings, size=size, crop=crop, frames=args.frames))
+        rows.append(evaluate_video(video, encoder, settings, size=size, crop=crop, frames=args.frames,
+                                   temporal_frames=args.temporal_frames))
     for note in sorted({r["note"] for r in rows if r["note"]}):
         print(f"hypergs: note: {note}", file=sys.stderr)
     keys = ["psnr", "ssim", "ms_ssim", "floor_bilinear_psnr", "gaussians", "edge_bias", "encode_seconds",
@@ -52,15 +56,28 @@ def run(args) -> None:
     ripple = [r["flat_ripple"] for r in rows if r["flat_ripple"]["blocks"]]
     mean["flat_ripple_render_std"] = float(np.mean([f["render_std"] for f in ripple])) if ripple else None
     mean["flat_ripple_source_std"] = float(np.mean([f["source_std"] for f in ripple])) if ripple else None
+    temporal = [r["temporal"] for r in rows if "temporal" in r]
+    if temporal:
+        still = [t["still_change"] for t in temporal if t["still_change"]["render"] is not None]
+        weights = [c["fraction"] for c in still]  # over all still pixels: a video with few counts little
+        mean["temporal"] = dict(psnr=float(np.mean([t["psnr"] for t in temporal])),
+                                delta_psnr=float(np.mean([t["delta_psnr"] for t in temporal])),
+                                still_change=dict(fraction=float(np.mean([t["still_change"]["fraction"] for t in temporal])),
+                                                  **{k: float(np.average([c[k] for c in still], weights=weights))
+                                                     if still else None for k in ("source", "render")}))
     report = dict(encoder=encoder.name, density=dict(gaussians=settings.gaussians, cell=settings.cell),
                   refine=settings.refine,
                   frames_from=("native" if args.native else "full" if args.full else f"crop {args.crop}" if args.crop
                                else f"size {args.size}"),
-                  frames=args.frames, videos=rows, mean=mean)
+                  frames=args.frames, temporal_frames=args.temporal_frames, videos=rows, mean=mean)
     if args.json:
         print(json.dumps(report, indent=2))
         return
     for r in rows + [dict(video="mean", **mean)]:
+        t = r.get("temporal")
+        still = t and t["still_change"]["render"]
         print(f"{r['video']:40s} {r['psnr']:6.2f} dB (bilinear floor {r['floor_bilinear_psnr']:.2f}) "
               f"N {r['gaussians']:.0f}  SSIM {r['ssim']:.4f}  MS-SSIM {r['ms_ssim']:.4f}  "
-              f"encode {r['encode_fps']:7.2f} fps  decode {r['decode_fps']:7.1f} fps")
+              + (f"delta-PSNR {t['delta_psnr']:.2f} dB  " if t else "")
+              + (f"still change {still:.2f}/255  " if still is not None else "")
+              + f"encode {r['encode_fps']:7.2f} fps  decode {r['decode_fps']:7.1f} fps")

@@ -10,6 +10,7 @@ checks this for every subcommand and passes each type's `refused` examples to it
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
@@ -92,6 +93,41 @@ class Text(ArgType):
         if not text.strip():
             raise argparse.ArgumentTypeError("must not be empty")
         return text
+
+
+class ConfigItem(ArgType):
+    """FIELD=VALUE: a field of a network config (model.py's dataclasses) and its value, read as JSON (a
+    number, a list) or else as text."""
+
+    refused = ("", "mid", "=1", "no_such_field=1")
+
+    def __call__(self, text: str) -> tuple[str, object]:
+        from dataclasses import fields
+
+        from ..model import ConvConfig, TransformerConfig
+        field, sep, value = text.partition("=")
+        if not sep or not field or not value:
+            raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
+        known = {f.name for cls in (ConvConfig, TransformerConfig) for f in fields(cls)} - {"arch"}
+        if field not in known:
+            raise argparse.ArgumentTypeError(f"{field!r} is not a network config field ({', '.join(sorted(known))})")
+        try:
+            return field, json.loads(value)
+        except ValueError:
+            return field, value
+
+
+class LrScale(ArgType):
+    """PART=FACTOR: a top-level part of a network (a module name: head, stem, ...; checked when the run
+    starts) and a positive learning-rate factor for its parameters."""
+
+    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a.b=2")
+
+    def __call__(self, text: str) -> tuple[str, float]:
+        part, sep, value = text.partition("=")
+        if not sep or not part.isidentifier():
+            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a top-level part of the network), got {text!r}")
+        return part, positive_float(value)
 
 
 class Name(ArgType):
@@ -247,6 +283,8 @@ positive_float = Real(0.0)
 non_negative_float = Real(0.0, inclusive=True)
 fraction = Real(0.0, inclusive=True, high=1.0)
 text = Text()
+config_item = ConfigItem()
+lr_scale = LrScale()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()

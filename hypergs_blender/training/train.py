@@ -29,6 +29,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
+from ..errors import HyperGSError
 from ..io.frames import read_frames
 from ..io.images import resize_exact
 from ..metrics import psnr, psnr_from_mse
@@ -90,12 +91,14 @@ class Prefetcher:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
-def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]."""
+def training_loss(model, frames: torch.Tensor, n: int, regularizer, inputs: torch.Tensor | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]. inputs: what the (conv) network
+    sees instead of the frames, e.g. the frames with noise (the render is compared with the frames)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
-        params = model(frames).float()
+        params = model(frames if inputs is None else inputs.reshape(b * t, size, size, 3)).float()
     else:
         anchors, cell = anchor_inputs(n, frames.device)
         params = model(frames, anchors, cell).float()
@@ -106,8 +109,76 @@ def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[tor
     return mse + reg_loss, mse, stats
 
 
+def warm_start(model, path, rank: int = 0) -> None:
+    """Copy the weights of `path` (.safetensors) whose name and shape the model has: the same design
+    continues, and a new part (another stem, a new branch) keeps its initialisation (new branches
+    start at zero, so the warm-started network starts as the one it came from). A residual block with
+    fewer middle channels than in `path` takes the most important of them (|conv a's filter| x |conv
+    b's weights from it|): structured pruning, which --distill then repairs. Names what was left."""
+    from safetensors.torch import load_file
+    weights = load_file(str(path))
+    own = model.state_dict()
+    for key in [k for k in own if k.endswith(".a.weight") and k in weights]:
+        block = key[:-len("a.weight")]
+        a, b = weights[key], weights[block + "b.weight"]
+        keep = own[key].shape[0]
+        if a.shape[0] > keep and a.shape[1:] == own[key].shape[1:]:
+            importance = a.flatten(1).norm(dim=1) * b.transpose(0, 1).flatten(1).norm(dim=1)
+            chosen = importance.topk(keep).indices.sort().values
+            weights[key], weights[block + "a.bias"] = a[chosen], weights[block + "a.bias"][chosen]
+            weights[block + "b.weight"] = b[:, chosen]
+    taken = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
+    model.load_state_dict(taken, strict=False)
+    left = sorted(set(own) - set(taken))
+    if rank == 0 and left:
+        print(f"warm start from {path}: {len(taken)} tensors; kept at initialisation: {', '.join(left)}", flush=True)
+
+
+def lr_groups(model, lr_scale: dict) -> list[dict]:
+    """The trainable parameters in AdamW groups: one per learning-rate factor, the parameters of each
+    top-level part named in `lr_scale` (part -> factor) with its factor, the rest with 1."""
+    parts = {name for name, _ in model.named_children()}
+    unknown = sorted(set(lr_scale) - parts)
+    if unknown:
+        raise HyperGSError(f"--lr-scale: {', '.join(unknown)} not parts of this network ({', '.join(sorted(parts))})")
+    groups = {}
+    for name, parameter in model.named_parameters():
+        if parameter.requires_grad:
+            groups.setdefault(float(lr_scale.get(name.split(".")[0], 1.0)), []).append(parameter)
+    return [dict(params=params, lr_scale=scale) for scale, params in groups.items()]
+
+
+def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank: int) -> torch.Tensor:
+    """The frames plus Gaussian noise of a standard deviation drawn per frame, uniformly in [0, max_std]
+    (in 1/255), quantised to 8 bits like a video frame: what the network sees when it learns that
+    a flat region with a camera's noise in it is still flat. A pure function of (seed, step, rank)."""
+    rng = np.random.default_rng([int(seed), int(step), int(rank), 4099])
+    shape = frames.shape
+    std = rng.uniform(0, max_std / 255, (shape[0],) + (1,) * (len(shape) - 1)).astype(np.float32)
+    noise = torch.from_numpy(rng.standard_normal(shape, dtype=np.float32) * std).to(frames.device)
+    return (torch.round((frames + noise).clamp(0, 1) * 255) / 255).to(frames.dtype)
+
+
+def distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, stats): the network's cell features (its head's input) against the teacher's on one
+    batch of frames, the mean squared difference over the teacher's feature variance (the fraction not
+    reproduced); `mse` is the network's render MSE, for the log."""
+    size = frames.shape[2]
+    frames = frames.reshape(-1, size, size, 3)
+    x = (frames.permute(0, 3, 1, 2) - 0.5) * 2
+    with torch.no_grad():
+        target = teacher.features(x)
+    student = getattr(model, "module", model)
+    loss = torch.mean((student.features(x) - target) ** 2) / target.var()
+    with torch.no_grad():
+        mse = torch.mean((render_torch(student(frames).float(), size, size, size, size) - frames) ** 2)
+    return loss, mse, {"unexplained": round(float(loss.detach()), 5)}
+
+
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
+    if args.distill and not args.init_from:
+        raise HyperGSError("--distill needs --init-from: a warm start whose head reads the teacher's features")
     distributed = "RANK" in os.environ
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -125,18 +196,28 @@ def run(args) -> None:
     config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])
     if not resume and args.parametrization:
         config["parametrization"] = args.parametrization
+    if not resume:
+        config.update(args.config or {})
     for key, value in ARCH_DEFAULTS[config["arch"]].items():
         if getattr(args, key) is None:
             setattr(args, key, value)
     torch.manual_seed(args.seed)
     model = build_model(config).to(device)
     conv = isinstance(model, ConvGS)
-    if not resume and args.init_from and conv:  # warm start from exported weights of the same design
-        from safetensors.torch import load_file
-        model.load_state_dict(load_file(str(args.init_from)))
+    teacher = None
+    if conv and args.init_from:
+        if not resume:
+            warm_start(model, args.init_from, rank)
+        if args.distill:  # the teacher's features, read by the warm start's head, kept as it came
+            from ..network import load_model
+            teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
+            for name, parameter in model.named_parameters():
+                parameter.requires_grad_(not name.startswith("head."))
     regularizer = None if conv else AdaptiveRegularizer().to(device)
     if conv:
-        optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
+        # a run keeps the parameter groups it started with (a checkpoint's optimizer state needs them)
+        lr_scale = dict(json.loads(resume["args"]).get("lr_scale") or {}) if resume else dict(args.lr_scale)
+        optimizer = torch.optim.AdamW(lr_groups(model, lr_scale), lr=args.lr, weight_decay=1e-4)
     else:
         optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
     step, wall, cpu = 0, 0.0, 0.0
@@ -182,10 +263,15 @@ def run(args) -> None:
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
             with amp:
-                loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+                if teacher is None:
+                    inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
+                    loss, mse, stats = training_loss(train_model, frames, n, regularizer, inputs)
+                else:
+                    loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip))
+            grad_norm = float(torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad],
+                                                             args.clip))
             optimizer.step()
             step += 1
             wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started

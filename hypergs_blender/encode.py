@@ -4,8 +4,15 @@ one Gaussian each, whose size (in source pixels) is the density a user chooses, 
 which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
 the W x H canvas (exact covariance, gaussians.stretch_params).
 
-Encoders: the trained network through torch or onnxruntime (network.py), and the grid floor that every
-model must beat (`FloorEncoder`). Each has `name`, `stride` and `predict(working frames) -> params`.
+The paper's transformer (network.TransformerEncoder) has a fixed input canvas instead: its frame is
+the paper's patch grid of tiles (`TileLayout`, `--grid`), the working frame a grid of canvas x canvas
+tiles, with a k x k lattice of Gaussians in each, chosen by a count per tile or a cell size.
+`encoder_layout` plans either.
+
+Encoders: the trained networks through torch or onnxruntime (network.py), and the grid floor that
+every model must beat (`FloorEncoder`). Each has `name`, `tile_borders` and `predict(working frames,
+cells) -> params`; the conv network and the floor a `stride` and `granule`, the transformer a
+`canvas` and `clip_frames`.
 """
 from __future__ import annotations
 
@@ -16,6 +23,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import limits
 from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
@@ -92,6 +100,69 @@ def plan_layout(width: int, height: int, stride: int, gaussians: int | None = No
 
 
 @dataclass(frozen=True)
+class TileLayout(Layout):
+    """The transformer's layout: the frame as a tiles = (columns, rows) patch grid, each tile canvas x
+    canvas working pixels holding a k x k lattice of Gaussians (cols = k columns, rows = k rows;
+    stride = canvas / k, not always a whole number)."""
+    tiles: tuple[int, int] = (1, 1)
+    canvas: int = 128
+
+    @property
+    def per_tile(self) -> int:
+        return self.count // (self.tiles[0] * self.tiles[1])
+
+    @property
+    def work_width(self) -> int:
+        return self.tiles[0] * self.canvas
+
+    @property
+    def work_height(self) -> int:
+        return self.tiles[1] * self.canvas
+
+
+def plan_tile_layout(width: int, height: int, canvas: int, gaussians: int | None = None, cell: float | None = None,
+                     grid: tuple[int, int] | None = None, trained: tuple[int, int] = (1, 1 << 20)) -> TileLayout:
+    """The transformer's layout of a width x height frame: a grid (columns, rows) of tiles (default:
+    tiles of about `canvas` source pixels, the frame at its own resolution), each with about
+    `gaussians` Gaussians or cells of `cell` source pixels (exactly one of the two) on a k x k lattice.
+    A count per tile outside `trained` (the range the model was trained for) is clamped, and `note`
+    says so."""
+    if (gaussians is None) == (cell is None):
+        raise HyperGSError("give a Gaussian count or a cell size, not both")
+    if gaussians is not None and gaussians < 1:
+        raise HyperGSError(f"the Gaussian count must be at least 1, got {gaussians}")
+    if cell is not None and not cell > 0:
+        raise HyperGSError(f"the cell size must be positive, got {cell}")
+    columns, rows = grid or (max(1, round(width / canvas)), max(1, round(height / canvas)))
+    if columns < 1 or rows < 1:
+        raise HyperGSError(f"the patch grid must be at least 1x1, got {columns}x{rows}")
+    limits.check_image_size(columns * canvas, rows * canvas, f"a {columns}x{rows} patch grid of {canvas} px tiles")
+    if gaussians is not None:
+        wanted, asked = math.sqrt(gaussians), f"{gaussians} Gaussians per tile"
+    else:
+        wanted, asked = math.sqrt(width * height / (columns * rows)) / cell, f"cells of {cell:g} px"
+    lo, hi = math.ceil(math.sqrt(trained[0])), max(1, math.isqrt(trained[1]))
+    k = min(max(round(wanted), lo, 1), hi)
+    note = ""
+    if k != max(1, round(wanted)):
+        note = (f"{asked} on {width}x{height} ({columns}x{rows} tiles) is outside the trained range "
+                f"({trained[0]}-{trained[1]} per tile): using {k * k} per tile")
+    return TileLayout(width, height, columns * k, rows * k, canvas / k, note, (columns, rows), canvas)
+
+
+def encoder_layout(encoder, width: int, height: int, gaussians: int | None = None, cell: float | None = None,
+                   grid: tuple[int, int] | None = None) -> Layout:
+    """The layout `encoder` encodes a width x height frame on: the transformer's patch grid (`grid`:
+    (columns, rows), default the frame at its resolution), or cells at a density (plan_layout)."""
+    if hasattr(encoder, "canvas"):
+        return plan_tile_layout(width, height, encoder.canvas, gaussians, cell, grid, encoder.gaussians)
+    if grid is not None and tuple(grid) != (1, 1):
+        raise HyperGSError(f"the patch grid is the transformer's; the {encoder.name} encoder encodes at a density "
+                           "(a Gaussian count or a cell size)")
+    return plan_layout(width, height, encoder.stride, gaussians, cell, encoder.granule)
+
+
+@dataclass(frozen=True)
 class EncodeCost:
     """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
     (Blender's dialogs). Measured on the 2-core development machine (one thread: 1280x720, cells of
@@ -142,11 +213,14 @@ class FloorEncoder:
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         return [], []  # one pass over the whole frame
 
-    def predict(self, frames: np.ndarray) -> np.ndarray:
-        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]."""
+    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
+        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]
+        (`cells`, the layout's (cols, rows), must be the frame's)."""
+        from .network import check_cells
         b, h, w, _ = frames.shape
         s = self.stride
         rows, cols = h // s, w // s
+        check_cells(cells, cols, rows)
         out = np.empty((b, rows, cols, 8), np.float32)
         out[..., 0] = ((np.arange(cols) + 0.5) * s * 2 / w - 1)[None, None, :]
         out[..., 1] = ((np.arange(rows) + 0.5) * s * 2 / h - 1)[None, :, None]
@@ -159,14 +233,15 @@ class FloorEncoder:
 def encode_frames(frames: np.ndarray, encoder, layout: Layout) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas."""
     work = np.stack([resize_exact(f, layout.work_width, layout.work_height) for f in frames])
-    params = encoder.predict(work.astype(np.float32) / 255)
+    params = encoder.predict(work.astype(np.float32) / 255, (layout.cols, layout.rows))
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     return stretch_params(params, tx, ty) if (tx, ty) != (1, 1) else params
 
 
-def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None) -> Layout:
-    """plan_layout for frames [T, H, W, 3] and an encoder."""
-    return plan_layout(frames.shape[2], frames.shape[1], encoder.stride, gaussians, cell, encoder.granule)
+def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
+                  grid: tuple[int, int] | None = None) -> Layout:
+    """encoder_layout for frames [T, H, W, 3]."""
+    return encoder_layout(encoder, frames.shape[2], frames.shape[1], gaussians, cell, grid)
 
 
 class EncodePlan:
@@ -174,24 +249,28 @@ class EncodePlan:
     the layout, the frame rate and the source description."""
 
     def __init__(self, path, encoder, gaussians: int | None = None, cell: float | None = None,
-                 size: int | None = None, start: int = 0, stop: int | None = None, num_frames: int | None = None):
+                 size: int | None = None, start: int = 0, stop: int | None = None, num_frames: int | None = None,
+                 grid: tuple[int, int] | None = None):
         info = probe(path)
         self.path, self.encoder, self.size = path, encoder, size
         self.indices = sample_indices(info.num_frames, num_frames, start, stop)
         self.height, self.width = (size, size) if size else (info.height, info.width)
-        self.layout = plan_layout(self.width, self.height, encoder.stride, gaussians, cell, encoder.granule)
+        self.layout = encoder_layout(encoder, self.width, self.height, gaussians, cell, grid)
         idx = self.indices
         self.fps = info.fps * (len(idx) - 1) / max(1, idx[-1] - idx[0]) if len(idx) > 1 else info.fps
         self.source = dict(path=str(path), frames=idx, size=[info.width, info.height], encoder=encoder.name)
 
     @property
     def grid(self) -> tuple[int, int]:
+        """What the clip records as its grid: the Gaussians' lattice (cols, rows), one per cell."""
         return self.layout.cols, self.layout.rows
 
     def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0):
         """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
-        encoded `chunk_frames` at a time, so memory does not grow with the video. `progress` may
-        return False to cancel (raises Cancelled)."""
+        encoded `chunk_frames` at a time (rounded up to whole clips of the encoder's `clip_frames`), so
+        memory does not grow with the video. `progress` may return False to cancel (raises Cancelled)."""
+        clip = getattr(self.encoder, "clip_frames", 1)
+        chunk_frames = -(-chunk_frames // clip) * clip
         done, buffer = 0, []
 
         def report():
@@ -221,12 +300,14 @@ class EncodePlan:
 
 def encode_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = None,
                  start: int = 0, stop: int | None = None, num_frames: int | None = None,
-                 progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0) -> GaussianVideo:
+                 progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0,
+                 grid: tuple[int, int] | None = None) -> GaussianVideo:
     """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
     one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
-    short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
+    short-side-resizes and centre-crops to size x size first. grid: the transformer's patch grid
+    (encoder_layout). See EncodePlan.chunks for the rest."""
     started = time.perf_counter()
-    plan = EncodePlan(path, encoder, gaussians, cell, size, start, stop, num_frames)
+    plan = EncodePlan(path, encoder, gaussians, cell, size, start, stop, num_frames, grid)
     params = np.concatenate([p for _, p in plan.chunks(progress, chunk_frames, refine)])
     return GaussianVideo(params, plan.width, plan.height, plan.fps, plan.grid,
                          dict(plan.source, encode_seconds=time.perf_counter() - started))

@@ -38,10 +38,11 @@ def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None
 
 
 def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
-                    refine: int = 0) -> dict:
-    """Encode uint8 frames [T, H, W, 3], render them at H x W, and measure."""
+                    refine: int = 0, grid: tuple[int, int] | None = None) -> dict:
+    """Encode uint8 frames [T, H, W, 3] (grid: the transformer's patch grid), render them at H x W, and
+    measure."""
     t, h, w = source.shape[:3]
-    layout = frames_layout(source, encoder, gaussians, cell)
+    layout = frames_layout(source, encoder, gaussians, cell, grid)
     started = time.perf_counter()
     params = encode_frames(source, encoder, layout)
     if refine:
@@ -59,7 +60,8 @@ def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, c
                  "tiles": [len(xs) + 1, len(ys) + 1],
                  "flat_ripple": metrics.flat_ripple(rendered, target, window=round(2 * layout.cell)),
                  "edge_bias": metrics.edge_bias(rendered, target)}
-    return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows],
+    tiles = dict(grid=list(layout.tiles), per_tile=layout.per_tile) if hasattr(layout, "tiles") else {}
+    return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows], **tiles,
                 cell=round(layout.cell, 3), note=layout.note, refine=refine, **metrics.summary(rendered, target),
                 floor_bilinear_psnr=bilinear_floor_psnr(source, layout.count), **artefacts,
                 encode_seconds=encode_seconds, decode_seconds=decode_seconds,
@@ -67,9 +69,9 @@ def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, c
 
 
 def evaluate_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = 256,
-                   crop: int | None = None, frames: int = 8, refine: int = 0) -> dict:
+                   crop: int | None = None, frames: int = 8, refine: int = 0, grid: tuple[int, int] | None = None) -> dict:
     source = read_eval_frames(path, frames, size, crop)
-    return dict(video=str(path), **evaluate_frames(source, encoder, gaussians, cell, refine))
+    return dict(video=str(path), **evaluate_frames(source, encoder, gaussians, cell, refine, grid))
 
 
 def warm_up(encoder) -> None:

@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 
+from ..errors import HyperGSError
 from ..evaluate import evaluate_video, warm_up
 from ..io.frames import probe
 from . import options
@@ -34,6 +35,9 @@ def add_commands(subparsers) -> None:
 def run(args) -> None:
     encoder = encoder_from_args(args)
     if args.tile:
+        if not hasattr(encoder, "tile"):
+            raise HyperGSError(f"--tile sets the conv network's tiles; the {encoder.name} encoder tiles by its "
+                               "patch grid (--grid)")
         encoder.tile = args.tile
     warm_up(encoder)
     size = None if (args.native or args.full or args.crop) else args.size

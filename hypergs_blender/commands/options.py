@@ -229,6 +229,20 @@ class GaussianRange(ArgType):
         return text
 
 
+class PatchGrid(ArgType):
+    """The transformer's patch grid: 'G' (G x G tiles) or 'COLSxROWS' -> (columns, rows)."""
+
+    refused = ("abc", "", "0", "-2", "2x", "0x3", "3x0", "1x2x3", "99999")
+
+    def __call__(self, text: str) -> tuple[int, int]:
+        parts = text.lower().split("x")
+        if len(parts) > 2:
+            raise argparse.ArgumentTypeError(f"{text!r} is not G or COLSxROWS (e.g. 2 or 3x2)")
+        side = Integer(1, high=1024)
+        columns, rows = side(parts[0]), side(parts[-1])
+        return columns, rows
+
+
 def _check_limit(limit: limits.Limit, value) -> None:
     try:
         limit.check(value, "")
@@ -254,6 +268,7 @@ run_folder = OutputFolder(parents=True)
 resolution = Resolution()
 frame_size = FrameSize()
 gaussian_range = GaussianRange()
+patch_grid = PatchGrid()
 
 
 def command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
@@ -285,27 +300,39 @@ def add_encoder_arguments(parser) -> None:
     parser.add_argument("--encoder", default="network", choices=["network", "floor"],
                         help="the trained network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--weights", default=None, type=input_folder,
-                        help="folder with <name>.json/.safetensors/.onnx")
+    add_model_arguments(parser)
     parser.add_argument("--refine", type=non_negative_int, default=0,
                         help="per-frame refinement steps after the prediction")
 
 
+def add_model_arguments(parser) -> None:
+    """Which trained model: a weights folder (either design; its card says which), and a name."""
+    parser.add_argument("--weights", default=None, type=input_folder,
+                        help="folder with <name>.json/.safetensors/.onnx (default: the bundled models)")
+    parser.add_argument("--model", default=None, type=name,
+                        help="the model's name in that folder (default: hypergs, or the folder's only model)")
+
+
 def add_density_arguments(parser, default_cell: float | None = None) -> None:
-    """How many Gaussians: a count per frame, or a cell size (one Gaussian per cell x cell source pixels)."""
+    """How many Gaussians: a count per frame (the transformer: per tile), or a cell size (one Gaussian
+    per cell x cell source pixels); and the transformer's patch grid."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--gaussians", type=gaussian_count, default=None, help="Gaussians per frame (about; on a grid of cells)")
+    group.add_argument("--gaussians", type=gaussian_count, default=None,
+                       help="Gaussians per frame (about; on a grid of cells); the transformer: per patch-grid tile")
     group.add_argument("--cell", type=positive_float, default=None,
                        help=f"source pixels per Gaussian cell side (default {default_cell:g})" if default_cell
                        else "source pixels per Gaussian cell side")
+    parser.add_argument("--grid", type=patch_grid, default=None,
+                        help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
+                             "at the frame's resolution)")
     parser.set_defaults(default_cell=default_cell)
 
 
 def density_from_args(args) -> dict:
-    if args.gaussians is None and args.cell is None:
-        return dict(cell=args.default_cell)
-    return dict(gaussians=args.gaussians, cell=args.cell)
+    density = dict(cell=args.default_cell) if args.gaussians is None and args.cell is None else dict(
+        gaussians=args.gaussians, cell=args.cell)
+    return dict(density, grid=args.grid)
 
 
 def encoder_from_args(args, device=None):
-    return resolve_encoder(args.encoder, args.backend, args.weights, device)
+    return resolve_encoder(args.encoder, args.backend, args.weights, device, name=args.model)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..model import PRESETS
-from ..network import BUNDLED_NAME, WEIGHTS_DIR
+from ..network import BUNDLED_NAME, DEFAULT_NAMES, WEIGHTS_DIR
 from ..training.data import DEFAULT_SPEC
 from ..training.sources import DEFAULT_ROOT
 from . import options
@@ -19,7 +19,7 @@ def add_commands(subparsers) -> None:
                    help="conv: the default network; small / paper: the paper's transformer design")
     p.add_argument("--parametrization", choices=["local", "paper"], help="override a transformer preset's")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
-                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's")
+                   help="start a new run from weights of the same design (.safetensors), e.g. the bundled model's")
     p.add_argument("--data", default=DEFAULT_SPEC, type=options.text, help="training.data.build_sources spec")
     p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
     p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,
@@ -47,10 +47,12 @@ def add_commands(subparsers) -> None:
                    help="threads drawing the next batches (1 on a 2-core machine; ~8 on a GPU machine)")
     p.set_defaults(func=_train_command)
 
-    p = subparsers.add_parser("export", help="training checkpoint -> weights (safetensors + JSON card + ONNX)")
+    p = subparsers.add_parser("export", help="training checkpoint (either design) -> weights (safetensors + JSON "
+                                             "card + ONNX)")
     p.add_argument("run", type=options.input_folder, help="run folder holding checkpoint.pt")
     p.add_argument("--out", default=str(WEIGHTS_DIR), type=options.output_folder)
-    p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
+    p.add_argument("--name", default=None, type=options.name,
+                   help=f"file name (default: {', '.join(f'{v} for the {k} design' for k, v in DEFAULT_NAMES.items())})")
     p.set_defaults(func=_export_command)
 
     p = subparsers.add_parser("export-onnx", help="weights (safetensors) -> <name>.onnx beside them")
@@ -66,8 +68,8 @@ def _train_command(args) -> None:
 
 def _export_command(args) -> None:
     from ..training.export import export_checkpoint
-    info = export_checkpoint(args.run, args.out, args.name)
-    print(f"exported step {info['step']} to {args.out}/{args.name}.{{safetensors,json,onnx}}")
+    name, info = export_checkpoint(args.run, args.out, args.name)
+    print(f"exported step {info['step']} to {args.out}/{name}.{{safetensors,json,onnx}}")
 
 
 def _export_onnx_command(args) -> None:

@@ -4,7 +4,8 @@ periodic evaluation, resident memory in the log.
 The conv network (the default) trains on single frames: batches of random `--size` crops (photo pans
 at random scales, procedural scenes), one Gaussian per 4x4 pixels, MSE of the render against the
 crop, AdamW. The paper's transformer (presets small/paper) trains on T-frame clips with a Gaussian
-count drawn per step, MSE plus the adaptive erank/scale regularizers, LAMB.
+count drawn per step (a k x k anchor lattice at a random phase per clip, as the windows of a tiled
+frame see it), MSE plus the adaptive erank/scale regularizers, LAMB.
 
 The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on GPUs,
 gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of (seed,
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
+from ..gaussians import lattice_anchors
 from ..io.frames import read_frames
 from ..io.images import resize_exact
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
@@ -93,15 +95,26 @@ class Prefetcher:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
-def training_loss(model, frames: torch.Tensor, n: int, regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]."""
+def lattice_for_step(n: int, seed: int, step: int, rank: int, clips: int) -> tuple[int, np.ndarray]:
+    """The transformer's anchors at a step: a k x k lattice (k = round(sqrt(n))) at a random phase per
+    clip [clips, 2], as the windows of a tiled frame cut the lattice (gaussians.lattice_anchors); a pure
+    function of (seed, step, rank), like the batch."""
+    k = max(1, round(math.sqrt(n)))
+    return k, np.random.default_rng([seed, step, rank, 104729]).random((clips, 2), dtype=np.float32)
+
+
+def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] | None,
+                  regularizer) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]; lattice: the transformer's
+    (k, phase per clip), see lattice_for_step (the conv network's Gaussians are its cells)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
         params = model(frames).float()
     else:
-        anchors, cell = anchor_inputs(n, frames.device)
-        params = model(frames, anchors, cell).float()
+        k, phase = lattice
+        anchors = torch.from_numpy(lattice_anchors(k, phase)).to(frames.device)
+        params = model(frames, anchors, torch.tensor([2.0 / k], device=frames.device)).float()
     mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2)
     if regularizer is None:
         return mse, mse, {}
@@ -134,7 +147,7 @@ def run(args) -> None:
     torch.manual_seed(args.seed)
     model = build_model(config).to(device)
     conv = isinstance(model, ConvGS)
-    if not resume and args.init_from and conv:  # warm start from exported weights of the same design
+    if not resume and args.init_from:  # warm start from exported weights of the same design
         from safetensors.torch import load_file
         model.load_state_dict(load_file(str(args.init_from)))
     regularizer = None if conv else AdaptiveRegularizer().to(device)
@@ -181,11 +194,12 @@ def run(args) -> None:
         while step < args.steps:
             frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device)
             n = gaussians_for_step(args.gaussians, args.seed, step)
+            lattice = None if conv else lattice_for_step(n, args.seed, step, rank, frames.shape[0])
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
             with amp:
-                loss, mse, stats = training_loss(train_model, frames, n, regularizer)
+                loss, mse, stats = training_loss(train_model, frames, lattice, regularizer)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip))
@@ -201,7 +215,7 @@ def run(args) -> None:
                                   psnr=round(train_psnr, 3), grad_norm=round(grad_norm, 4), rss_mb=round(rss_mb()),
                                   **stats)
                     if not conv:
-                        record["n"] = n
+                        record["n"] = lattice[0] ** 2
                     log.write(json.dumps(record) + "\n")
                     log.flush()
                 if step % args.checkpoint_every == 0 or step == args.steps:

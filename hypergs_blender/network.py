@@ -274,10 +274,10 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
 
 
 def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None,
-                    providers: list[str] | None = None, threads: int = 0, name: str | None = None):
-    """The encoder to use. kind: "network" (a trained network: the model `name` in the folder `weights`;
-    default the bundled conv network; the card says which design it is) or "floor" (the no-learning
-    grid floor). backend for the network: "torch" (needs torch and the .safetensors weights), "onnx"
+                    providers: list[str] | None = None, threads: int = 0):
+    """The encoder to use. kind: "network" (a trained network: `weights` is a folder (its model, see
+    weights_name) or a model's card in one, <folder>/<name>.json; default the bundled conv network; the
+    card says which design it is) or "floor" (the no-learning grid floor). backend for the network: "torch" (needs torch and the .safetensors weights), "onnx"
     (needs onnxruntime and the .onnx model), or "auto": torch where both are there, else onnx.
     providers, threads: onnxruntime's execution providers and CPU threads (see onnx_encoder). What
     cannot load raises HyperGSError saying why; nothing falls back to another kind of encoder."""
@@ -288,7 +288,9 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         raise HyperGSError(f"unknown encoder {kind!r} (network or floor)")
     if backend not in BACKENDS:
         raise HyperGSError(f"unknown encoder backend {backend!r} ({', '.join(BACKENDS)})")
-    directory = Path(weights or WEIGHTS_DIR)
+    directory, name = Path(weights or WEIGHTS_DIR), None
+    if directory.suffix == ".json":
+        directory, name = directory.parent, directory.stem
     name = weights_name(directory, name)
     card = read_card(directory, name)
     if backend == "auto":

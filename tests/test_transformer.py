@@ -177,9 +177,9 @@ def test_a_folder_of_several_models_needs_a_name(exported, tmp_path):
         shutil.copy(exported / f"tiny.{suffix}", exported / f"other.{suffix}")
     with pytest.raises(HyperGSError, match="several models"):
         resolve_encoder(weights=exported)
-    assert resolve_encoder(weights=exported, name="other", backend="onnx").name == "transformer-onnx"
+    assert resolve_encoder(weights=exported / "other.json", backend="onnx").name == "transformer-onnx"
     with pytest.raises(HyperGSError, match="no model weights"):
-        resolve_encoder(weights=tmp_path / "weights", name="missing")
+        resolve_encoder(weights=exported / "missing.json")
 
 
 def test_eval_command_with_a_patch_grid(exported, moving_video, capsys):
@@ -193,3 +193,26 @@ def test_eval_command_with_a_patch_grid(exported, moving_video, capsys):
     with pytest.raises(SystemExit):
         main(["eval", str(moving_video), "--encoder", "floor", "--grid", "2"])
     assert "patch grid is the transformer's" in capsys.readouterr().err
+
+
+def test_delta_psnr_sees_flicker_not_a_steady_error():
+    from hypergs_blender.bench.designs import delta_psnr
+    frames = np.full((4, 8, 8, 3), 100, np.uint8)
+    steady = np.full((4, 8, 8, 3), 100 / 255 + 0.1, np.float32)
+    flicker = steady.copy()
+    flicker[1::2] -= 0.2  # +0.1, -0.1, +0.1, -0.1: every difference is off by 0.2
+    assert delta_psnr(steady, frames) > 100
+    assert delta_psnr(flicker, frames) == pytest.approx(-10 * np.log10(0.04), abs=1e-3)
+
+
+def test_bench_designs_compares_at_equal_count_and_time(exported, moving_video):
+    from hypergs_blender.bench.designs import bench_designs
+    from hypergs_blender.encode import FloorEncoder
+    transformer = resolve_encoder(weights=exported, backend="onnx")
+    report = bench_designs([moving_video], FloorEncoder(), transformer, gaussians=(16, 64), grids=(1, 2),
+                           refine_steps=(1, 3), size=32, frames=4, device="cpu")
+    first = report["summary"][0]
+    assert [e["n"] for e in report["summary"]] == [16, 64] and first["videos"] == 1
+    assert first["conv"]["gaussians"] == 16 and first["transformer"]["1"]["gaussians"] == 16
+    assert [r["k"] for r in first["refine"]] == [1, 3]
+    assert "| transformer, grid 2x2 |" in report["table"] and "30.3 dB" in report["table"]

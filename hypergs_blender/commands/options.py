@@ -16,7 +16,7 @@ from pathlib import Path
 from .. import limits
 from ..errors import HyperGSError, one_line
 from ..io import files
-from ..network import BACKENDS, resolve_encoder
+from ..network import BACKENDS, WEIGHTS_DIR, resolve_encoder
 
 BIGGEST = 1 << 31  # no count or size of ours goes past this: int32 everywhere
 
@@ -143,6 +143,18 @@ class InputFolder(ArgType):
         return text
 
 
+class ModelWeights(ArgType):
+    """A trained model: a weights folder, or a model's card in one (<folder>/<name>.json)."""
+
+    refused = ("", "/nonexistent/folder", "/nonexistent/model.json")
+
+    def __call__(self, text: str) -> str:
+        path = Path(text)
+        if text and (path.is_dir() or (path.suffix == ".json" and path.is_file())):
+            return text
+        raise argparse.ArgumentTypeError(f"{text}: no weights folder or model card (.json)")
+
+
 class OutputFile(ArgType):
     """A file to write: one of `suffixes` (when given) in an existing, writable folder, not a folder."""
 
@@ -263,6 +275,7 @@ text = Text()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()
+model_weights = ModelWeights()
 output_folder = OutputFolder()
 run_folder = OutputFolder(parents=True)
 resolution = Resolution()
@@ -310,7 +323,8 @@ def add_model_arguments(parser) -> None:
     parser.add_argument("--weights", default=None, type=input_folder,
                         help="folder with <name>.json/.safetensors/.onnx (default: the bundled models)")
     parser.add_argument("--model", default=None, type=name,
-                        help="the model's name in that folder (default: hypergs, or the folder's only model)")
+                        help="the model's name in that folder, e.g. hypergs_transformer (default: hypergs, or the "
+                             "folder's only model)")
 
 
 def add_density_arguments(parser, default_cell: float | None = None) -> None:
@@ -334,5 +348,13 @@ def density_from_args(args) -> dict:
     return dict(density, grid=args.grid)
 
 
+def weights_from_args(args):
+    """What resolve_encoder loads for --weights and --model: the folder, or the named model's card in it
+    (default folder: the bundled models)."""
+    if args.model is None:
+        return args.weights
+    return Path(args.weights or WEIGHTS_DIR) / f"{args.model}.json"
+
+
 def encoder_from_args(args, device=None):
-    return resolve_encoder(args.encoder, args.backend, args.weights, device, name=args.model)
+    return resolve_encoder(args.encoder, args.backend, weights_from_args(args), device)

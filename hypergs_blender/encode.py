@@ -201,6 +201,12 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
                     cost.hgs_bytes_per_gaussian * n * frames)
 
 
+def check_cells(cells: tuple[int, int] | None, cols: int, rows: int) -> None:
+    """An encoder whose frame size fixes its cells (cols x rows) refuses a layout of other cells."""
+    if cells is not None and tuple(cells) != (cols, rows):
+        raise ValueError(f"the working frame holds {cols}x{rows} cells, not {cells[0]}x{cells[1]}")
+
+
 class FloorEncoder:
     """The floor: one Gaussian per cell at its centre, sigma INITIAL_SIGMA cells, colour the cell's mean
     times the gain that makes the overlapping kernels sum to the image. No learning (the network with
@@ -216,7 +222,6 @@ class FloorEncoder:
     def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]
         (`cells`, the layout's (cols, rows), must be the frame's)."""
-        from .network import check_cells
         b, h, w, _ = frames.shape
         s = self.stride
         rows, cols = h // s, w // s

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import HyperGSError
+from .gaussians import lattice_anchors
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 BUNDLED_NAME = "hypergs"  # the bundled conv network, the default model
@@ -76,6 +77,7 @@ class NetworkEncoder:
         the layout's (cols, rows), must be those)."""
         b, h, w, _ = frames.shape
         s = self.stride
+        from .encode import check_cells
         check_cells(cells, w // s, h // s)
         out = np.empty((b, h // s, w // s, 8), np.float32)
         windows = [(y, x) for y in tiles(h, self.reach, self.multiple, self.tile)
@@ -142,7 +144,6 @@ class TransformerEncoder:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the canvas; cells: the Gaussian
         lattice (cols, rows), k per tile along each axis -> params [B, rows * cols, 8] on the W x H
         canvas, row-major over the lattice."""
-        from .gaussians import lattice_anchors
         b, h, w, _ = frames.shape
         c, t = self.canvas, self.clip_frames
         cols, rows = cells
@@ -182,12 +183,6 @@ def transformer_geometry(cfg, gaussians: tuple[int, int] | None = None) -> dict:
                 gaussians=list(gaussians or (1, most)))
 
 
-def check_cells(cells: tuple[int, int] | None, cols: int, rows: int) -> None:
-    """An encoder whose frame size fixes its cells (cols x rows) refuses a layout of other cells."""
-    if cells is not None and tuple(cells) != (cols, rows):
-        raise ValueError(f"the working frame holds {cols}x{rows} cells, not {cells[0]}x{cells[1]}")
-
-
 def read_card(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME) -> dict:
     path = Path(directory) / f"{name}.json"
     if not path.is_file():
@@ -209,11 +204,6 @@ def weights_name(directory, name: str | None = None) -> str:
     if not cards:
         raise HyperGSError(f"no model weights in {directory}: train one with `hypergs train` and `hypergs export`")
     raise HyperGSError(f"{directory} holds several models ({', '.join(cards)}): name one")
-
-
-def bundled_models() -> list[str]:
-    """The names of the models bundled in WEIGHTS_DIR (for --model)."""
-    return sorted(p.stem for p in WEIGHTS_DIR.glob("*.json"))
 
 
 def load_model(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME):

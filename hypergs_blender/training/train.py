@@ -5,7 +5,7 @@ The conv network (the default) trains on single frames: batches of random `--siz
 at random scales, procedural scenes), one Gaussian per 4x4 pixels, MSE of the render against the
 crop, AdamW. The paper's transformer (presets small/paper) trains on T-frame clips with a Gaussian
 count drawn per step (a k x k anchor lattice at a random phase per clip, as the windows of a tiled
-frame see it), MSE plus the adaptive erank/scale regularizers, LAMB.
+frame see it), MSE plus the adaptive erank/scale regularizers (on scales in grid cells), LAMB.
 
 The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on GPUs,
 gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of (seed,
@@ -118,7 +118,10 @@ def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] |
     mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2)
     if regularizer is None:
         return mse, mse, {}
-    reg_loss, stats = regularizer(params[..., 2:4])
+    # Scales in grid cells (the anchor spacing, size / k canvas pixels): the thresholds then hold for
+    # every Gaussian count drawn (in canvas pixels the EMA, set by the steps with many small Gaussians,
+    # penalised every Gaussian of a step with few large ones).
+    reg_loss, stats = regularizer(params[..., 2:4] * (lattice[0] / size))
     return mse + reg_loss, mse, stats
 
 
@@ -150,7 +153,8 @@ def run(args) -> None:
     if not resume and args.init_from:  # warm start from exported weights of the same design
         from safetensors.torch import load_file
         model.load_state_dict(load_file(str(args.init_from)))
-    regularizer = None if conv else AdaptiveRegularizer().to(device)
+    # the paper's thresholds (s0 32 px, ceiling 80 px at its 8 px spacing: N = 1000 on 256^2) in grid cells
+    regularizer = None if conv else AdaptiveRegularizer(s0=4.0, scale_ceiling=10.0).to(device)
     if conv:
         optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
     else:

@@ -31,7 +31,9 @@ DEFAULT_NAMES = {"conv": BUNDLED_NAME, "transformer": "hypergs_transformer"}  # 
 BACKENDS = ("auto", "torch", "onnx")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
 BATCH_PIXELS = 1 << 21  # working pixels per forward pass (bounds memory)
-BATCH_TOKENS = 1 << 17  # the transformer's tokens (patch and Gaussian, all frames) per forward pass
+# The transformer's attention pairs (query x key tokens, all frames) per forward pass: onnxruntime holds
+# each attention's scores whole (6 heads x 4 bytes each for `small`: ~200 MB), torch's kernel does not.
+BATCH_PAIRS = 1 << 23
 
 
 def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[int, int, int, int]]:
@@ -112,7 +114,7 @@ class TransformerEncoder:
     twice. With margin 0 the windows are the tiles themselves (the paper's patch grid; the "paper"
     parametrization, whose Gaussians are not tied to anchors, encodes so). Frames are taken in clips of
     `clip_frames` (the last one padded with its last frame), all windows of all clips in as few
-    forward passes as BATCH_TOKENS allows."""
+    forward passes as BATCH_PAIRS allows."""
 
     def __init__(self, forward, canvas: int, clip_frames: int, patch: int, name: str, margin: int,
                  gaussians: tuple[int, int], session=None):
@@ -155,7 +157,7 @@ class TransformerEncoder:
         padded = padded.reshape(clips, t, h, w, 3)
         jobs = [(i, y, x) for i in range(clips) for y in self._axis(h, k) for x in self._axis(w, k)]
         out = np.empty((clips, t, rows, cols, 8), np.float32)
-        per_call = max(1, BATCH_TOKENS // (t * ((c // self.patch) ** 2 + k * k)))
+        per_call = max(1, BATCH_PAIRS // (t * ((c // self.patch) ** 2 + k * k) ** 2))
         cell = np.array([2.0 / k], np.float32)
         for n in range(0, len(jobs), per_call):
             batch = jobs[n:n + per_call]

@@ -237,6 +237,7 @@ def _designs(parser):
     parser.add_argument("--start", type=options.frame_index, default=0)
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
+    parser.add_argument("--threads", type=options.positive_int, default=1, help="CPU threads of either backend")
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
                         help="also write the JSON report here")
     parser.add_argument("--table", default=None, type=options.OutputFile((".md",)),
@@ -247,10 +248,13 @@ def _designs(parser):
         from ..bench.designs import bench_designs
         from ..io.files import write_bytes
         from ..network import resolve_encoder
+        import torch
+        torch.set_num_threads(args.threads)
         device = resolve_device(args.device)
-        conv = resolve_encoder("network", args.backend, args.conv, device)
+        conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads)
         bundled = WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json"
-        transformer = resolve_encoder("network", args.backend, args.transformer or bundled, device)
+        transformer = resolve_encoder("network", args.backend, args.transformer or bundled, device,
+                                      threads=args.threads)
         report = bench_designs(args.videos, conv, transformer, args.gaussians, args.grids, args.refine_steps,
                                args.size, args.frames, args.start, device, progress=_progress)
         if args.table:

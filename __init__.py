@@ -5,7 +5,7 @@ The work happens in `hypergs_blender` (no bpy); `ops`, `ui` and `engine` are the
 import bpy
 
 from . import engine, ops, ui
-from .com import paths
+from .com import cache, frames, paths
 from .ops.props import HyperGSClipSettings, HyperGSSceneSettings
 
 CLASSES = [*ops.CLASSES, *ui.CLASSES, *engine.CLASSES]
@@ -19,9 +19,13 @@ def register():
     engine.register()
     ui.register()
     paths.register()
+    cache.register()
+    frames.register()
 
 
 def unregister():
+    frames.unregister()
+    cache.unregister()
     paths.unregister()
     ui.unregister()
     engine.unregister()

@@ -1,10 +1,8 @@
 """A clip's mesh data, shared by the operators (ops/) and the render engine (engine/): writing and
-reading its points' attributes (see hypergs_blender/points.py for what they mean), the `frame`
-attribute, the outline mesh of a linked clip, and the path of a clip's linked file.
-
-One mesh per clip: its vertices are the Gaussians of every frame (position on the image plane, and
-point attributes `scale`, `rotation`, `color`, `frame`); a linked clip's mesh is just the image
-plane's outline (4 vertices, 4 edges), its Gaussians live in the .hgs file (linked.py).
+reading its points' attributes (see hypergs_blender/points.py for what they mean), the frame a cache
+clip's mesh holds (SHOWN, com/frames.py), the outline mesh of a linked clip, and the path of a clip's
+linked file. Clips embedded whole (made before frame caches) also have a `frame` attribute
+(`read_clip_points`).
 """
 from __future__ import annotations
 
@@ -12,8 +10,12 @@ import bpy
 import numpy as np
 
 from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.gaussians import GaussianVideo
-from ..hypergs_blender.points import video_to_points
+
+
+def is_clip(obj) -> bool:
+    """Whether `obj` (an object, evaluated or not, or None) is a HyperGS clip."""
+    return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip
+
 
 # attribute -> (components wanted, {data_type: (foreach key, components stored)})
 _ATTRIBUTES = {
@@ -45,21 +47,39 @@ def read_points(mesh) -> dict | None:
     return out
 
 
-def write_points(mesh, points: dict) -> None:
-    """Fill an empty mesh with vertices carrying the clip's point attributes (float32, foreach_set)."""
-    n = len(points["position"])
-    mesh.vertices.add(n)
-    mesh.attributes["position"].data.foreach_set("vector", points["position"].ravel())
-    for name, kind, key in (("scale", "FLOAT2", "vector"), ("rotation", "FLOAT", "value"),
-                            ("color", "FLOAT_COLOR", "color"), ("frame", "INT", "value")):
-        attribute = mesh.attributes.new(name, kind, "POINT")
-        attribute.data.foreach_set(key, np.ascontiguousarray(points[name]).ravel())
-    mesh.update()
+# The point attributes written (position aside): name -> (data type, foreach key)
+POINT_ATTRIBUTES = {"scale": ("FLOAT2", "vector"), "rotation": ("FLOAT", "value"), "color": ("FLOAT_COLOR", "color")}
+SHOWN = "hypergs_frame"  # ID property of a clip's mesh: the clip frame it holds (NOTHING: none)
+NOTHING = -1
+
+
+def _make_color_active(mesh) -> None:
     try:  # make `color` the attribute that Mesh > Set Attribute and the colour display act on
         mesh.attributes.active_color = mesh.attributes["color"]
         mesh.attributes.active = mesh.attributes["color"]
     except (AttributeError, TypeError, KeyError):
         pass
+
+
+def write_frame(mesh, points: dict, frame: int) -> None:
+    """Make the (Object Mode) mesh hold one frame's points: position, scale, rotation, color [M, 4]
+    (float32), and SHOWN = frame. Its vertices are made again only when their count changes (or an
+    attribute is missing or of another type): then edges, faces and attributes of the user's go too.
+    About 0.4 ms for 57,600 points (foreach_set of float32 and the depsgraph update)."""
+    n = len(points["position"])
+    if len(mesh.vertices) != n or mesh.edges or mesh.polygons or any(
+            (a := mesh.attributes.get(name)) is None or a.data_type != kind or a.domain != "POINT"
+            for name, (kind, _) in POINT_ATTRIBUTES.items()):
+        mesh.clear_geometry()  # also removes the custom attributes
+        mesh.vertices.add(n)
+        for name, (kind, _) in POINT_ATTRIBUTES.items():
+            mesh.attributes.new(name, kind, "POINT")
+        _make_color_active(mesh)
+    if n:
+        for name, key in (("position", "vector"), *((n, k) for n, (_, k) in POINT_ATTRIBUTES.items())):
+            mesh.attributes[name].data.foreach_set(key, np.ascontiguousarray(points[name], np.float32).ravel())
+    mesh[SHOWN] = int(frame)
+    mesh.update()
 
 
 def clip_problem(video) -> str | None:
@@ -70,17 +90,6 @@ def clip_problem(video) -> str | None:
     if video.num_frames < 1 or video.num_gaussians < 1:
         return f"an empty clip ({video.num_frames} frames of {video.num_gaussians} Gaussians)"
     return None
-
-
-def new_clip_mesh(name: str, video: GaussianVideo):
-    points = video_to_points(video)  # a padded clip (see points_to_video) without its padding
-    mesh = bpy.data.meshes.new(name)
-    try:
-        write_points(mesh, points)
-    except BaseException:  # no half-made mesh is left behind
-        bpy.data.meshes.remove(mesh)
-        raise
-    return mesh
 
 
 def outline(canvas_width: int, canvas_height: int) -> np.ndarray:

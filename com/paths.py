@@ -18,6 +18,8 @@ import os
 import bpy
 from bpy.app.handlers import persistent
 
+from . import add_handlers, remove_handlers
+
 
 def stored_path(path: str, blend: str | None = None) -> str:
     """How to store the absolute `path` in the .blend saved at `blend` (default: the open one)."""
@@ -91,10 +93,8 @@ HANDLERS = (("save_pre", _save_pre), ("save_post", _save_post), ("save_post_fail
 
 
 def register():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).append(handler)
+    add_handlers(HANDLERS)
 
 
 def unregister():
-    for name, handler in HANDLERS:
-        getattr(bpy.app.handlers, name).remove(handler)
+    remove_handlers(HANDLERS)

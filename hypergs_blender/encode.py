@@ -1,42 +1,51 @@
-"""Video -> GaussianVideo. A frame of W x H pixels is encoded on a `Layout`: a cols x rows grid of cells,
-one Gaussian each, whose size (in source pixels) is the density a user chooses, by a Gaussian count
-(`--gaussians`) or a cell size (`--cell`). The encoder sees the frame resized to its working size, at
-which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
+"""Video -> GaussianVideo. What a user asks for is one `EncodeSettings`: a Quality preset (`QUALITY`), a
+Gaussian count or a cell size, and refine steps; the command line (`--quality`, `--gaussians`, `--cell`,
+`--refine`), Blender's dialogs and the encode all read it, and derive from it the `Layout` of a W x H
+frame (with the encoder's stride and granule): a cols x rows grid of cells, one Gaussian each, whose
+size (in source pixels) is the density chosen. The encoder sees the frame resized to its working size,
+at which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
 the W x H canvas (exact covariance, gaussians.stretch_params).
 
 The paper's transformer (network.TransformerEncoder) has a fixed input canvas instead: its frame is
-the paper's patch grid of tiles (`TileLayout`, `--grid`), the working frame a grid of canvas x canvas
-tiles, with a k x k lattice of Gaussians in each, chosen by a count per tile or a cell size.
-`encoder_layout` plans either.
+the paper's patch grid of tiles (`TileLayout`, the settings' `grid`, `--grid`), the working frame a
+grid of canvas x canvas tiles, with a k x k lattice of Gaussians in each, chosen by a count per tile
+or a cell size. `encoder_layout` plans either.
+
+`EncodePlan` is the one streaming encode of a video (decode -> encode -> refine, chunk by chunk, with
+progress, cancel and the PSNR of sampled frames) that `hypergs encode`, Blender's conversions and the
+benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, the benches).
 
 Encoders: the trained networks through torch or onnxruntime (network.py), and the grid floor that
-every model must beat (`FloorEncoder`). Each has `name`, `tile_borders` and `predict(working frames,
-cells) -> params`; the conv network and the floor a `stride` and `granule`, the transformer a
-`canvas` and `clip_frames`.
+every model must beat (`FloorEncoder`). Each has `name`, `tile_borders`, `release` and
+`predict(working frames, cells) -> params`; the conv network and the floor a `stride` and `granule`,
+the transformer a `canvas` and `clip_frames`.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
-from . import limits
+from . import limits, metrics, optional
 from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
+from .render import render_params
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
 
+BATCH_PIXELS = 1 << 20  # working pixels per forward pass and per float32 batch (bounds memory: one 720p frame)
 MAX_CELL = 32.0  # source pixels per cell side; coarser would shrink frames more than 8x (untrained)
 QUALITY = {  # cell size in source pixels and refine steps of each quality preset
     "draft": dict(cell=8.0, refine=0),
     "standard": dict(cell=6.0, refine=0),
     "high": dict(cell=4.0, refine=30),
 }
+DEFAULT_QUALITY = "standard"
 
 
 @dataclass(frozen=True)
@@ -133,7 +142,7 @@ def plan_tile_layout(width: int, height: int, canvas: int, gaussians: int | None
         raise HyperGSError(f"the Gaussian count must be at least 1, got {gaussians}")
     if cell is not None and not cell > 0:
         raise HyperGSError(f"the cell size must be positive, got {cell}")
-    columns, rows = grid or (max(1, round(width / canvas)), max(1, round(height / canvas)))
+    columns, rows = grid or default_grid(width, height, canvas)
     if columns < 1 or rows < 1:
         raise HyperGSError(f"the patch grid must be at least 1x1, got {columns}x{rows}")
     limits.check_image_size(columns * canvas, rows * canvas, f"a {columns}x{rows} patch grid of {canvas} px tiles")
@@ -150,6 +159,12 @@ def plan_tile_layout(width: int, height: int, canvas: int, gaussians: int | None
     return TileLayout(width, height, columns * k, rows * k, canvas / k, note, (columns, rows), canvas)
 
 
+def default_grid(width: int, height: int, canvas: int) -> tuple[int, int]:
+    """The transformer's patch grid when none is asked for: tiles of about `canvas` source pixels (the
+    frame at its own resolution)."""
+    return max(1, round(width / canvas)), max(1, round(height / canvas))
+
+
 def encoder_layout(encoder, width: int, height: int, gaussians: int | None = None, cell: float | None = None,
                    grid: tuple[int, int] | None = None) -> Layout:
     """The layout `encoder` encodes a width x height frame on: the transformer's patch grid (`grid`:
@@ -163,42 +178,102 @@ def encoder_layout(encoder, width: int, height: int, gaussians: int | None = Non
 
 
 @dataclass(frozen=True)
+class EncodeSettings:
+    """What a user asks of an encode: about `gaussians` per frame (the transformer: per tile) or cells
+    of `cell` source pixels (one of the two), `refine` steps after the network, and the transformer's
+    patch `grid` (columns, rows; None: tiles of its canvas size). `choose` reads a user's choice;
+    `layout` is where the Gaussians of a frame go."""
+    gaussians: int | None = None
+    cell: float | None = None
+    refine: int = 0
+    note: str = ""  # why the settings differ from what was asked (refining needs PyTorch)
+    grid: tuple[int, int] | None = None
+
+    @classmethod
+    def choose(cls, quality: str | None = None, gaussians: int | None = None, cell: float | None = None,
+               refine: int | None = None, default: str = DEFAULT_QUALITY,
+               grid: tuple[int, int] | None = None) -> EncodeSettings:
+        """The one reading of a user's choice: a Quality preset (a key of QUALITY: its cell size and
+        refine steps), else a Gaussian count, else a cell size (a count wins over a cell size), else the
+        `default` preset. `refine`, when given, replaces the preset's steps (else 0 for a count or a cell).
+        `grid` is the transformer's patch grid (any of the three)."""
+        grid = None if grid is None else (int(grid[0]), int(grid[1]))
+        if quality is None and gaussians is None and cell is None:
+            quality = default
+        if quality is not None:
+            if quality not in QUALITY:
+                raise HyperGSError(f"unknown quality {quality!r} ({', '.join(QUALITY)})")
+            preset = QUALITY[quality]
+            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine, grid=grid)
+        if gaussians is not None:
+            return cls(gaussians=gaussians, refine=refine or 0, grid=grid)
+        return cls(cell=cell, refine=refine or 0, grid=grid)
+
+    def runnable(self) -> EncodeSettings:
+        """These settings as this Python can run them: refining needs PyTorch (Blender's Python has
+        none), so without it there is no refining, and `note` says so."""
+        if self.refine and not optional.torch_available():
+            return replace(self, refine=0, note=f"not refined: refining needs PyTorch, which this Blender's "
+                                                f"Python lacks ({self.refine} steps asked)")
+        return self
+
+    def layout(self, width: int, height: int, encoder) -> Layout:
+        """The layout of a width x height frame for `encoder` (encoder_layout: its stride and granule, or
+        the transformer's canvas and patch grid)."""
+        return encoder_layout(encoder, width, height, self.gaussians, self.cell, self.grid)
+
+
+@dataclass(frozen=True)
 class EncodeCost:
     """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
-    (Blender's dialogs). Measured on the 2-core development machine (one thread: 1280x720, cells of
-    6 px, the conv network ~0.85 s per frame; refine at cells of 4 px ~0.4 s per step); recalibrate when
-    an encoder changes."""
-    predict_s_per_gaussian: float  # the encoder's forward pass
-    hgs_bytes_per_gaussian: float  # a .hgs file at 8 bits
-    decode_s_per_pixel: float = 9e-8  # decoding the source frame (PyAV)
+    (Blender's dialogs): the wall time on an otherwise idle machine. Measured on the 2-core development
+    machine as CPU seconds (two trainings ran beside: wall seconds were 1.5-3x more), 1920 x 1080 at
+    Standard (57,600 Gaussians): the network (onnxruntime) 0.79 s per frame on one thread, 0.93 CPU s
+    on two; decoding 0.04 s; writing the frame cache 0.025 s; the floor 0.043 s. A whole conversion in
+    Blender took 1.15 CPU s per frame on two threads (300 frames): what these leave out (the frames'
+    handling between decoder and network) is in decode_s_per_pixel, which puts the estimate, 0.58 s per
+    frame on two threads, between two readings of that CPU time as an idle machine's wall time: 0.46 s
+    scaled as the command line's (the issue's 0.6 s per frame on an idle machine took 1.49 CPU s per
+    frame here, 30 frames with torch, start-up included) and 0.69 s with the network's part halved.
+    Recalibrate when an encoder changes (`tools/long_clips.py` prints the estimate beside the measured
+    conversion, in wall and CPU seconds)."""
+    predict_s_per_gaussian: float  # the encoder's forward pass (with the resize to its working size), one thread
+    cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
+    threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
+    decode_s_per_pixel: float = 4e-8  # decoding the source frame (PyAV) and handing it to the encoder
+    write_s_per_gaussian: float = 4.4e-7  # writing the frame cache
     refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
     refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
-    blend_bytes_per_gaussian: float = 44.0  # embedded in a .blend: float32 position, scale, rotation, RGBA, frame
+    blend_bytes_per_gaussian: float = 40.0  # the frame a clip's mesh holds: float32 position, scale, rotation, RGBA
 
 
 ENCODE_COSTS = {  # by encoder: "floor", or "network" (both backends)
-    "floor": EncodeCost(predict_s_per_gaussian=2e-5, hgs_bytes_per_gaussian=2.2),
-    "network": EncodeCost(predict_s_per_gaussian=3.5e-5, hgs_bytes_per_gaussian=3.8),
+    "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
+    "network": EncodeCost(predict_s_per_gaussian=1.38e-5, cache_bytes_per_gaussian=12.4),
 }
+THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (0.93 CPU s on 2 vs 0.79 on 1)
 
 
 @dataclass(frozen=True)
 class Estimate:
     seconds: float
-    blend_bytes: float  # the clip embedded in a .blend
-    hgs_bytes: float  # the clip as a .hgs file (8 bits)
+    threads: int  # the CPU threads the time assumes
+    cache_bytes: float  # the clip's frame cache (beside the .blend)
+    blend_bytes: float  # what the clip adds to the .blend (the frame its mesh holds)
 
 
-def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network") -> Estimate:
+def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
-    name: "floor", "network-onnx", ...): time and size, from ENCODE_COSTS."""
+    name: "floor", "network-onnx", ...) on `threads` CPU threads: time and size, from ENCODE_COSTS."""
     cost = ENCODE_COSTS["floor" if encoder == "floor" else "network"]
-    n = layout.count
-    per_frame = cost.decode_s_per_pixel * layout.width * layout.height + cost.predict_s_per_gaussian * n
+    n, threads = layout.count, max(1, int(threads))
+    speedup = 1 + THREAD_GAIN * (threads - 1) if cost.threaded else 1.0
+    per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
+                 + cost.predict_s_per_gaussian * n / speedup)
     if refine > 0:
         per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
-    return Estimate(per_frame * frames, cost.blend_bytes_per_gaussian * n * frames,
-                    cost.hgs_bytes_per_gaussian * n * frames)
+    return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
+                    cost.blend_bytes_per_gaussian * n)
 
 
 def check_cells(cells: tuple[int, int] | None, cols: int, rows: int) -> None:
@@ -219,6 +294,9 @@ class FloorEncoder:
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         return [], []  # one pass over the whole frame
 
+    def release(self) -> None:
+        """Nothing to give back (the network's encoders free their runtime's memory here)."""
+
     def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]
         (`cells`, the layout's (cols, rows), must be the frame's)."""
@@ -235,58 +313,84 @@ class FloorEncoder:
         return out.reshape(b, rows * cols, 8)
 
 
-def encode_frames(frames: np.ndarray, encoder, layout: Layout) -> np.ndarray:
-    """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas."""
-    work = np.stack([resize_exact(f, layout.work_width, layout.work_height) for f in frames])
-    params = encoder.predict(work.astype(np.float32) / 255, (layout.cols, layout.rows))
+def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
+    """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
+    steps against the frames (refine.refine_params, needs torch) when asked. Frames go to the encoder
+    as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame; whole clips
+    of the transformer's `clip_frames`): memory does not grow with T (16 working frames of 1080p at
+    Standard were 700 MB as float32), and the network's own passes are no larger."""
+    clip = getattr(encoder, "clip_frames", 1)
+    per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height * clip)) * clip
+    params = np.empty((len(frames), layout.count, 8), np.float32)
+    for start in range(0, len(frames), per_pass):
+        work = np.stack([resize_exact(f, layout.work_width, layout.work_height)
+                         for f in frames[start:start + per_pass]]).astype(np.float32)
+        work /= 255
+        params[start:start + len(work)] = encoder.predict(work, (layout.cols, layout.rows))
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
-    return stretch_params(params, tx, ty) if (tx, ty) != (1, 1) else params
+    if (tx, ty) != (1, 1):
+        params = stretch_params(params, tx, ty)
+    if refine:
+        from .refine import refine_params
+        params = refine_params(params, frames, refine)
+    return params
 
 
 def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
                   grid: tuple[int, int] | None = None) -> Layout:
-    """encoder_layout for frames [T, H, W, 3]."""
-    return encoder_layout(encoder, frames.shape[2], frames.shape[1], gaussians, cell, grid)
+    """The layout of frames [T, H, W, 3] for `gaussians` per frame (per tile) or cells of `cell` pixels."""
+    return EncodeSettings(gaussians, cell, grid=grid).layout(frames.shape[2], frames.shape[1], encoder)
 
 
 class EncodePlan:
-    """What encoding a video will produce, known before any frame is decoded: the frames to take,
-    the layout, the frame rate and the source description."""
+    """The encode of a video with `settings`, known before any frame is decoded (the frames to take,
+    the layout, the frame rate and the source description), then run chunk by chunk (`chunks`, or
+    `video` for the whole clip in memory)."""
 
-    def __init__(self, path, encoder, gaussians: int | None = None, cell: float | None = None,
-                 size: int | None = None, start: int = 0, stop: int | None = None, num_frames: int | None = None,
-                 grid: tuple[int, int] | None = None):
+    def __init__(self, path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
+                 stop: int | None = None, num_frames: int | None = None):
         info = probe(path)
-        self.path, self.encoder, self.size = path, encoder, size
+        self.path, self.encoder, self.settings, self.size = path, encoder, settings, size
         self.indices = sample_indices(info.num_frames, num_frames, start, stop)
         self.height, self.width = (size, size) if size else (info.height, info.width)
-        self.layout = encoder_layout(encoder, self.width, self.height, gaussians, cell, grid)
+        self.layout = settings.layout(self.width, self.height, encoder)
         idx = self.indices
         self.fps = info.fps * (len(idx) - 1) / max(1, idx[-1] - idx[0]) if len(idx) > 1 else info.fps
         self.source = dict(path=str(path), frames=idx, size=[info.width, info.height], encoder=encoder.name)
+        self.psnr_values: list[float] = []  # of the frames `chunks` measured
 
     @property
     def grid(self) -> tuple[int, int]:
         """What the clip records as its grid: the Gaussians' lattice (cols, rows), one per cell."""
         return self.layout.cols, self.layout.rows
 
-    def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0):
+    @property
+    def psnr(self) -> float:
+        """Mean PSNR (dB) of the frames measured, rendered at the canvas size against the source."""
+        return float(np.mean(self.psnr_values)) if self.psnr_values else math.nan
+
+    def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0):
         """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
-        encoded `chunk_frames` at a time (rounded up to whole clips of the encoder's `clip_frames`), so
-        memory does not grow with the video. `progress` may return False to cancel (raises Cancelled)."""
+        encoded (and refined) `chunk_frames` at a time (rounded up to whole clips of the encoder's
+        `clip_frames`), so memory does not grow with the video. `progress` may return False to cancel
+        (raises Cancelled). `psnr_frames` frames, spread evenly, are rendered and measured against
+        their source frame on the way (`psnr`)."""
         clip = getattr(self.encoder, "clip_frames", 1)
         chunk_frames = -(-chunk_frames // clip) * clip
+        total = len(self.indices)
+        measured = set(np.round(np.linspace(0, total - 1, min(psnr_frames, total))).astype(int).tolist())
+        self.psnr_values = []
         done, buffer = 0, []
 
         def report():
-            if progress is not None and progress(done, len(self.indices)) is False:
+            if progress is not None and progress(done, total) is False:
                 raise Cancelled("encoding cancelled")
 
         def encode(frames):
-            params = encode_frames(frames, self.encoder, self.layout)
-            if refine:
-                from .refine import refine_params
-                params = refine_params(params, frames, refine)
+            params = encode_frames(frames, self.encoder, self.layout, self.settings.refine)
+            for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
+                image = render_params(params[i], self.width, self.height, self.width, self.height)
+                self.psnr_values.append(float(metrics.psnr(image[None], frames[i][None] / np.float32(255))[0]))
             return frames, params
 
         report()
@@ -302,17 +406,18 @@ class EncodePlan:
             done += len(buffer)
             report()
 
+    def video(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0) -> GaussianVideo:
+        """Every chunk's Gaussians as one GaussianVideo in memory (the source gains `encode_seconds`)."""
+        started = time.perf_counter()
+        params = np.concatenate([p for _, p in self.chunks(progress, chunk_frames, psnr_frames)])
+        return GaussianVideo(params, self.width, self.height, self.fps, self.grid,
+                             dict(self.source, encode_seconds=time.perf_counter() - started))
 
-def encode_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = None,
-                 start: int = 0, stop: int | None = None, num_frames: int | None = None,
-                 progress: Progress | None = None, chunk_frames: int = 16, refine: int = 0,
-                 grid: tuple[int, int] | None = None) -> GaussianVideo:
+
+def encode_video(path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
+                 stop: int | None = None, num_frames: int | None = None, progress: Progress | None = None,
+                 chunk_frames: int = 16) -> GaussianVideo:
     """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
     one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
-    short-side-resizes and centre-crops to size x size first. grid: the transformer's patch grid
-    (encoder_layout). See EncodePlan.chunks for the rest."""
-    started = time.perf_counter()
-    plan = EncodePlan(path, encoder, gaussians, cell, size, start, stop, num_frames, grid)
-    params = np.concatenate([p for _, p in plan.chunks(progress, chunk_frames, refine)])
-    return GaussianVideo(params, plan.width, plan.height, plan.fps, plan.grid,
-                         dict(plan.source, encode_seconds=time.perf_counter() - started))
+    short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
+    return EncodePlan(path, encoder, settings, size, start, stop, num_frames).video(progress, chunk_frames)

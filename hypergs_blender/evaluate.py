@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from . import metrics
-from .encode import encode_frames, frames_layout
+from .encode import EncodeSettings, encode_frames, frames_layout
 from .io.frames import read_frames
 from .render import render_params
 
@@ -37,17 +37,12 @@ def read_eval_frames(path, frames: int, size: int | None = 256, crop: int | None
     return source
 
 
-def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
-                    refine: int = 0, grid: tuple[int, int] | None = None) -> dict:
-    """Encode uint8 frames [T, H, W, 3] (grid: the transformer's patch grid), render them at H x W, and
-    measure."""
+def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> dict:
+    """Encode uint8 frames [T, H, W, 3] with `settings`, render them at H x W, and measure."""
     t, h, w = source.shape[:3]
-    layout = frames_layout(source, encoder, gaussians, cell, grid)
+    layout = settings.layout(w, h, encoder)
     started = time.perf_counter()
-    params = encode_frames(source, encoder, layout)
-    if refine:
-        from .refine import refine_params
-        params = refine_params(params, source, refine)
+    params = encode_frames(source, encoder, layout, settings.refine)
     encode_seconds = time.perf_counter() - started
     started = time.perf_counter()
     rendered = render_params(params, w, h, w, h)
@@ -62,16 +57,16 @@ def evaluate_frames(source: np.ndarray, encoder, gaussians: int | None = None, c
                  "edge_bias": metrics.edge_bias(rendered, target)}
     tiles = dict(grid=list(layout.tiles), per_tile=layout.per_tile) if hasattr(layout, "tiles") else {}
     return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows], **tiles,
-                cell=round(layout.cell, 3), note=layout.note, refine=refine, **metrics.summary(rendered, target),
+                cell=round(layout.cell, 3), note=layout.note, refine=settings.refine, **metrics.summary(rendered, target),
                 floor_bilinear_psnr=bilinear_floor_psnr(source, layout.count), **artefacts,
                 encode_seconds=encode_seconds, decode_seconds=decode_seconds,
                 encode_fps=t / encode_seconds, decode_fps=t / decode_seconds)
 
 
-def evaluate_video(path, encoder, gaussians: int | None = None, cell: float | None = None, size: int | None = 256,
-                   crop: int | None = None, frames: int = 8, refine: int = 0, grid: tuple[int, int] | None = None) -> dict:
+def evaluate_video(path, encoder, settings: EncodeSettings, size: int | None = 256, crop: int | None = None,
+                   frames: int = 8) -> dict:
     source = read_eval_frames(path, frames, size, crop)
-    return dict(video=str(path), **evaluate_frames(source, encoder, gaussians, cell, refine, grid))
+    return dict(video=str(path), **evaluate_frames(source, encoder, settings))
 
 
 def warm_up(encoder) -> None:

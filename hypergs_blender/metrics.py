@@ -8,11 +8,16 @@ import numpy as np
 
 
 def psnr(pred, target, data_range: float = 1.0) -> np.ndarray:
-    """Per-frame PSNR in dB over the last three axes; inf for identical frames."""
+    """Per-frame PSNR in dB over the last three axes (pred clipped to [0, data_range]); inf for
+    identical frames."""
     pred, target = _numpy(pred).astype(np.float64), _numpy(target).astype(np.float64)
-    mse = np.mean((np.clip(pred, 0, data_range) - target) ** 2, axis=(-3, -2, -1))
+    return psnr_from_mse(np.mean((np.clip(pred, 0, data_range) - target) ** 2, axis=(-3, -2, -1)), data_range)
+
+
+def psnr_from_mse(mse, data_range: float = 1.0):
+    """PSNR in dB of a mean squared error (a number or an array); inf for 0."""
     with np.errstate(divide="ignore"):
-        return 10 * np.log10(data_range ** 2 / mse)
+        return 10 * np.log10(data_range ** 2 / np.asarray(mse, np.float64))
 
 
 def ssim(pred, target) -> np.ndarray:

@@ -12,6 +12,13 @@ plainly why one cannot load). The card's `arch` says which design the weights ar
   each, through canvas-sized windows that overlap by a context margin; each window keeps the
   Gaussians of its core (`tiles` again), so every Gaussian was predicted with context on all sides.
 
+Memory (measured on a 1080p frame at the Standard density, a 1280 x 720 working frame): a forward
+pass's activations are ~0.6 GB per working frame. onnxruntime keeps what a run allocated in its arena
+for the session's life, and its memory pattern planner keeps a plan sized for every input shape it
+saw: two frames per pass with the planner held 2.4 GB after a conversion. So one working frame per
+pass (BATCH_PIXELS; no slower), no memory pattern (0.8 GB, no slower), and `release()` after a
+conversion gives the arena back (0.3 GB).
+
 Only the ONNX backend works without torch: inside Blender torch is usually absent (and the extension
 ships no safetensors), and this module imports torch lazily.
 """
@@ -22,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import optional
+from .encode import BATCH_PIXELS, FloorEncoder, check_cells
 from .errors import HyperGSError
 from .gaussians import lattice_anchors
 
@@ -30,7 +39,6 @@ BUNDLED_NAME = "hypergs"  # the bundled conv network, the default model
 DEFAULT_NAMES = {"conv": BUNDLED_NAME, "transformer": "hypergs_transformer"}  # what `hypergs export` names each design
 BACKENDS = ("auto", "torch", "onnx")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
-BATCH_PIXELS = 1 << 21  # working pixels per forward pass (bounds memory)
 # The transformer's attention pairs (query x key tokens, all frames) per forward pass: onnxruntime holds
 # each attention's scores whole (6 heads x 4 bytes each for `small`: ~200 MB), torch's kernel does not.
 BATCH_PAIRS = 1 << 23
@@ -55,6 +63,15 @@ def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[
     return out
 
 
+def release_arena(session, tiny_inputs: dict) -> None:
+    """Give back the memory onnxruntime's CPU arena kept from the passes so far: the arena frees the
+    regions no tensor uses at the end of a run that asks for it, here one on `tiny_inputs`."""
+    import onnxruntime as ort
+    options = ort.RunOptions()
+    options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
+    session.run(None, tiny_inputs, options)
+
+
 class NetworkEncoder:
     """Runs `forward(frames float32 [B, h, w, 3]) -> params [B, (h/stride)(w/stride), 8]` (a network on
     any backend) over working frames of any size, tiled (see the module doc). stride, multiple and
@@ -68,6 +85,12 @@ class NetworkEncoder:
         self.stride, self.multiple, self.reach, self.tile = int(stride), int(multiple), int(reach), int(tile)
         self.granule = self.multiple // self.stride
 
+    def release(self) -> None:
+        """Give back the memory the runtime kept from the passes so far (onnxruntime's arena; torch's
+        CPU allocator keeps none): call it after a conversion. The encoder stays usable."""
+        if self.session is not None:
+            release_arena(self.session, {"frames": np.zeros((1, self.multiple, self.multiple, 3), np.float32)})
+
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         """Where the tiles' cores meet on a working frame of width x height: (columns, rows)."""
         return tuple([c0 for _, _, c0, _ in tiles(size, self.reach, self.multiple, self.tile)][1:]
@@ -79,7 +102,6 @@ class NetworkEncoder:
         the layout's (cols, rows), must be those)."""
         b, h, w, _ = frames.shape
         s = self.stride
-        from .encode import check_cells
         check_cells(cells, w // s, h // s)
         out = np.empty((b, h // s, w // s, 8), np.float32)
         windows = [(y, x) for y in tiles(h, self.reach, self.multiple, self.tile)
@@ -122,6 +144,13 @@ class TransformerEncoder:
         self.provider = session.get_providers()[0] if session is not None else None
         self.canvas, self.clip_frames, self.patch, self.margin = int(canvas), int(clip_frames), int(patch), int(margin)
         self.gaussians = tuple(int(g) for g in gaussians)  # Gaussians per tile it was trained for (min, max)
+
+    def release(self) -> None:
+        """Give back the memory the runtime kept from the passes so far (as NetworkEncoder.release)."""
+        if self.session is not None:
+            release_arena(self.session, {"frames": np.zeros((1, self.clip_frames, self.canvas, self.canvas, 3), np.float32),
+                                         "anchors": np.zeros((1, 1, 2), np.float32),
+                                         "cell": np.array([2.0], np.float32)})
 
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         """Where the windows' cores meet on a working frame of width x height: (columns, rows)."""
@@ -249,6 +278,7 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
     import onnxruntime as ort
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.enable_mem_pattern = False  # a buffer plan per input shape, kept: 2x the memory, no faster
     options.intra_op_num_threads = threads
     session = ort.InferenceSession(str(onnx_path), options, providers=providers or ["CPUExecutionProvider"])
     if card.get("arch") == "transformer":
@@ -274,7 +304,6 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
     providers, threads: onnxruntime's execution providers and CPU threads (see onnx_encoder). What
     cannot load raises HyperGSError saying why; nothing falls back to another kind of encoder."""
     if kind == "floor":
-        from .encode import FloorEncoder
         return FloorEncoder()
     if kind != "network":
         raise HyperGSError(f"unknown encoder {kind!r} (network or floor)")
@@ -286,7 +315,7 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
     name = weights_name(directory, name)
     card = read_card(directory, name)
     if backend == "auto":
-        backend = "torch" if _torch_importable() and (directory / f"{name}.safetensors").is_file() else "onnx"
+        backend = "torch" if optional.torch_available() and (directory / f"{name}.safetensors").is_file() else "onnx"
     try:
         if backend == "torch":
             import torch
@@ -302,10 +331,3 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         raise HyperGSError(f"the trained network could not be loaded with {backend} "
                            f"({type(e).__name__}: {e})") from e
 
-
-def _torch_importable() -> bool:
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        return False
-    return True

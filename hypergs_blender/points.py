@@ -76,6 +76,18 @@ def clip_frame_index(scene_frame: float, frame_start: int, speed: float) -> int:
     return math.floor((scene_frame - frame_start) * speed + 1e-4)
 
 
+def blender_fps(fps: float) -> tuple[int, float]:
+    """A frame rate as Blender's scenes store it: (fps, fps_base), an integer and a float with fps /
+    fps_base the rate. Whole rates and the NTSC ones (24000/1001, 30000/1001, ...) as Blender's own
+    presets write them (base 1 or 1.001), any other rate with the base making up the rest."""
+    for base in (1.0, 1.001):
+        whole = round(fps * base)
+        if whole >= 1 and math.isclose(whole / base, fps, rel_tol=1e-4):
+            return whole, base
+    whole = max(1, round(fps))
+    return whole, whole / fps
+
+
 def points_to_video(points: dict, canvas_width: int, canvas_height: int, fps: float = 24.0, *,
                     num_frames: int | None = None, grid=(1, 1), source: dict | None = None) -> GaussianVideo:
     """Flat point arrays (position, scale, rotation, color, frame; see the module docstring) -> a clip.
@@ -104,20 +116,30 @@ def points_to_video(points: dict, canvas_width: int, canvas_height: int, fps: fl
     if np.all(counts == n):
         out = params.reshape(t, n, NUM_PARAMS)
     else:
-        pad = np.zeros(NUM_PARAMS, np.float32)
-        pad[2:4] = np.median(params[:, 2:4]) if len(params) else 1.0
-        out = np.broadcast_to(pad, (t, n, NUM_PARAMS)).copy()
+        out = np.broadcast_to(padding(params), (t, n, NUM_PARAMS)).copy()
         slot = np.arange(len(frame)) - np.repeat(np.cumsum(counts) - counts, counts)  # index within its frame
         out[frame, slot] = params
         source[FRAME_COUNTS] = counts.tolist()
     return GaussianVideo(out, canvas_width, canvas_height, fps, tuple(grid), source)
 
 
+def padding(params: np.ndarray) -> np.ndarray:
+    """The invisible Gaussian [8] that pads frames of a clip (`params` [..., 8]: its real ones) to N:
+    colour 0, the median scale, at the canvas centre."""
+    pad = np.zeros(NUM_PARAMS, np.float32)
+    pad[2:4] = np.median(params[..., 2:4]) if params.size else 1.0
+    return pad
+
+
 def frame_counts(video: GaussianVideo) -> np.ndarray:
-    """Real Gaussians per frame [T] (N everywhere unless the clip was padded by points_to_video;
-    a malformed `frame_counts` entry is ignored)."""
-    t, n = video.params.shape[:2]
-    counts = video.source.get(FRAME_COUNTS) if isinstance(video.source, dict) else None
+    """Real Gaussians per frame [T] (N everywhere unless the clip was padded by points_to_video)."""
+    return source_frame_counts(video.source, *video.params.shape[:2])
+
+
+def source_frame_counts(source, t: int, n: int) -> np.ndarray:
+    """Real Gaussians per frame [t] of a clip of N = n Gaussians per frame described by `source` (a
+    clip's metadata: its `frame_counts` entry, or N everywhere; a malformed entry is ignored)."""
+    counts = source.get(FRAME_COUNTS) if isinstance(source, dict) else None
     try:
         counts = np.asarray(counts, np.int64)
         if counts.shape == (t,) and np.all((counts >= 0) & (counts <= n)):

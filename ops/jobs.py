@@ -1,74 +1,80 @@
-"""Encoding work that runs off Blender's main thread. No bpy here: a job only sees a path and numbers,
-and hands back a GaussianVideo; the operator writes to bpy on the main thread when the job is done."""
+"""Encoding work that runs off Blender's main thread. No bpy here: a job only sees paths and the
+encode settings; it streams each clip's Gaussians into a new frame cache file (io/cache.py), a group of
+frames at a time, and hands back what it wrote; the operator writes to bpy on the main thread when the
+job is done.
+
+All or nothing: a job that fails or is cancelled leaves no file behind (the cache writer only renames a
+complete file into place, and the caches of the clips already done are removed again), nor a folder it
+made; `discard()` does the same for a finished job whose result the operator could not use. The
+encoder's runtime memory is given back when a job ends (`release`: onnxruntime's arena)."""
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
-from ..hypergs_blender.encode import EncodePlan
-from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.gaussians import GaussianVideo
-from ..hypergs_blender.metrics import psnr
-from ..hypergs_blender.render import render_params
-from .encoder import Runtime, describe_encoder, make_encoder
+from ..hypergs_blender.encode import EncodePlan, EncodeSettings
+from ..hypergs_blender.io import cache
+from ..hypergs_blender.io.files import make_folders, remove_folders
+from ..hypergs_blender.io.hgs import HgsHeader
+from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
 
 PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
 
 
-@dataclass
-class EncodeRequest:
+@dataclass(frozen=True)
+class Source:
+    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end); `fps`, when
+    given, is the clip's frame rate instead of the source's (image files have none: the scene's)."""
+    name: str
     path: str
-    gaussians: int | None  # Gaussians per frame, or None: one per cell x cell source pixels
-    cell: float | None
-    refine: int = 0  # refine steps after the network (0: none)
     start: int = 0
     stop: int | None = None
+    fps: float | None = None
 
 
 @dataclass
 class EncodeResult:
-    video: GaussianVideo
+    cache: str  # the frame cache file written (absolute path)
+    clip: HgsHeader  # what it holds: canvas, Gaussians per frame, frames, fps, grid, source
     psnr: float
     seconds: float
     encoder: str  # what encoded, and on which device (describe_encoder)
 
 
-def run_encode(request: EncodeRequest, runtime: Runtime = Runtime(), progress=None) -> EncodeResult:
-    """Encode, measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
-    runtime: where the network runs; progress(done, total) -> False cancels (raises Cancelled)."""
+def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, runtime: Runtime = Runtime(),
+               progress=None) -> EncodeResult:
+    """Encode `source` with `encoder` (make_encoder(runtime)) into a new frame cache at `target` (its
+    folder must exist), measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
+    progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
-    encoder = make_encoder(runtime)
-    plan = EncodePlan(request.path, encoder, request.gaussians, None if request.gaussians else request.cell,
-                      start=request.start, stop=request.stop)
-    total = len(plan.indices)
-    measured = set(np.round(np.linspace(0, total - 1, min(PSNR_FRAMES, total))).astype(int).tolist())
-    chunks, values, done = [], [], 0
-    for frames, params in plan.chunks(progress, refine=request.refine):
-        for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
-            image = render_params(params[i], plan.width, plan.height, plan.width, plan.height)
-            values.append(float(psnr(image[None], frames[i][None] / np.float32(255))[0]))
-        chunks.append(params)
-        done += len(frames)
-    video = GaussianVideo(np.concatenate(chunks), plan.width, plan.height, plan.fps, plan.grid,
-                          dict(plan.source, encode_seconds=time.perf_counter() - started))
-    return EncodeResult(video, float(np.mean(values)), time.perf_counter() - started,
+    plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
+    with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
+                      plan.source) as writer:
+        for _, params in plan.chunks(progress, psnr_frames=PSNR_FRAMES):
+            writer.write(params)
+    return EncodeResult(target, writer.header, plan.psnr, time.perf_counter() - started,
                         describe_encoder(encoder, runtime))
 
 
 class EncodeJob:
-    """run_encode for each request in turn, on a worker thread; `cancel()` makes its progress callback
-    return False. All or nothing: the job has `results` for every request, or an `error`."""
+    """run_encode for each source in turn into its target path, on a worker thread; `cancel()` makes
+    its progress callback return False. All or nothing (see the module doc): the job has `results` for
+    every source, or an `error` and no file."""
 
-    def __init__(self, requests: list[EncodeRequest], runtime: Runtime = Runtime()):
-        self.requests = list(requests)
+    def __init__(self, sources: list[Source], targets: list[str], settings: EncodeSettings,
+                 runtime: Runtime = Runtime()):
+        if len(targets) != len(sources):
+            raise ValueError("one target per source")
+        self.sources, self.targets = list(sources), list(targets)
+        self.settings = settings
         self.runtime = runtime
-        self.index = 0  # the request being encoded
+        self.index = 0  # the source being encoded
         self.done, self.total = 0, 0  # its frames
         self.results: list[EncodeResult] = []
         self.error: BaseException | None = None
+        self._folders: list = []  # folders this job made (removed again by discard when empty)
         self._cancel = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hypergs-encode", daemon=True)
 
@@ -78,11 +84,29 @@ class EncodeJob:
 
     def _run(self):
         try:
-            for self.index, request in enumerate(self.requests):
-                self.done = self.total = 0
-                self.results.append(run_encode(request, self.runtime, self._progress))
+            encoder = make_encoder(self.runtime)
+            try:
+                for self.index, (source, target) in enumerate(zip(self.sources, self.targets)):
+                    self.done = self.total = 0
+                    self._folders += make_folders(os.path.dirname(target))
+                    self.results.append(run_encode(source, self.settings, target, encoder, self.runtime,
+                                                   self._progress))
+            finally:
+                encoder.release()
         except BaseException as e:  # handed to the main thread, which reports it
             self.error = e
+            self.discard()
+
+    def discard(self) -> None:
+        """Remove what the job wrote: its cache files, then the folders it made if they are empty."""
+        for result in self.results:
+            try:
+                os.remove(result.cache)
+            except OSError:
+                pass
+        self.results.clear()
+        remove_folders(self._folders)
+        self._folders.clear()
 
     def start(self):
         self._thread.start()
@@ -98,7 +122,7 @@ class EncodeJob:
 
     @property
     def finished(self) -> bool:
-        return not self._thread.is_alive() and (self.error is not None or len(self.results) == len(self.requests))
+        return not self._thread.is_alive() and (self.error is not None or len(self.results) == len(self.sources))
 
     def join(self, timeout=None):
         self._thread.join(timeout)
@@ -106,18 +130,11 @@ class EncodeJob:
     @property
     def fraction(self) -> float:
         part = self.done / self.total if self.total else 0.0
-        return (self.index + part) / max(1, len(self.requests))
+        return (self.index + part) / max(1, len(self.sources))
 
     def status(self) -> str:
         """What the job does now, for the status bar."""
         text = f"encoding frame {self.done} of {self.total}" if self.total else "starting"
-        if len(self.requests) > 1:
-            text += f" of clip {self.index + 1} of {len(self.requests)}"
+        if len(self.sources) > 1:
+            text += f" of clip {self.index + 1} of {len(self.sources)}"
         return text
-
-
-def describe(error: BaseException) -> str:
-    """The message the user sees for an error (no traceback)."""
-    if isinstance(error, HyperGSError):
-        return str(error)
-    return f"{type(error).__name__}: {error}"

@@ -1,10 +1,10 @@
 """The add-on preferences (Edit > Preferences > Add-ons > HyperGS): where the network runs (an
-onnxruntime execution provider) and how many CPU threads it uses. ops/encoder.py turns them into the
-encoder's parameters; `runtime(context)` reads them on the main thread."""
+onnxruntime execution provider) and how many CPU threads it uses. hypergs_blender/runtime.py turns them
+into the encoder's parameters; `runtime(context)` reads them on the main thread."""
 import bpy
 from bpy.props import EnumProperty, IntProperty
 
-from .encoder import AUTO, PROVIDERS, Runtime, available_providers
+from ..hypergs_blender.runtime import AUTO, PROVIDERS, Runtime, available_providers
 
 ADDON = __package__.rpartition(".")[0]  # the extension's module, e.g. bl_ext.user_default.hypergs
 

@@ -1,7 +1,8 @@
-"""HyperGS settings: per object (`Object.hypergs`: what the clip is, how it was encoded, its timing) and
-per scene (`Scene.hypergs`: render settings)."""
+"""HyperGS settings: per object (`Object.hypergs`: what the clip is, how it was encoded, its timing, where
+its frames live) and per scene (`Scene.hypergs`: render settings)."""
 import bpy
-from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
+from bpy.props import (BoolProperty, CollectionProperty, FloatProperty, IntProperty, IntVectorProperty,
+                       PointerProperty, StringProperty)
 
 from ..com.compat import path_options
 from .quality import EncodeOptions
@@ -16,6 +17,12 @@ def _linked_path_changed(self, context):
     from . import scene
     if not paths.rebasing():
         scene.refresh_linked(self.id_data)
+
+
+class HyperGSOverride(bpy.types.PropertyGroup):
+    """An edited frame of a clip: the mesh holding its points instead of the cache's (com/frames.py)."""
+    frame: IntProperty(name="Frame", description="The clip frame (0: its first)", min=0)
+    mesh: PointerProperty(name="Points", type=bpy.types.Mesh)
 
 
 class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
@@ -39,7 +46,12 @@ class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
                              default=1, update=_timing_changed)
     speed: FloatProperty(name="Speed", description="Clip frames per scene frame", default=1.0, min=0.001,
                          update=_timing_changed)
-    # Where the Gaussians live: in the mesh (embedded, the default) or in an external .hgs file.
+    # Where the Gaussians live: a frame cache (the mesh holds the frame shown, com/frames.py), an external
+    # .hgs file (linked), or every frame in the mesh (clips embedded whole, made before frame caches).
+    cache: PointerProperty(name="Frame Cache", type=bpy.types.Image,
+                           description="The file holding every frame's Gaussians (an Image datablock so that "
+                                       "Blender's External Data tools handle it; never shown as an image)")
+    overrides: CollectionProperty(type=HyperGSOverride, name="Edited Frames")
     linked: BoolProperty(name="Linked", default=False,
                          description="The Gaussians are read from an external .hgs file at render time "
                                      "(the mesh only outlines the image plane)")
@@ -52,9 +64,9 @@ class HyperGSSceneSettings(bpy.types.PropertyGroup):
     """Per-scene HyperGS render settings (`Scene.hypergs`; Properties > Render > HyperGS)."""
     allow_missing_clips: BoolProperty(
         name="Render Missing Clips Black", default=False,
-        description="When a linked clip's file is missing or damaged during an animation (Ctrl-F12) or "
-                    "command-line render, render it black with a warning instead of stopping the render "
+        description="When a clip's frame cache or linked file is missing or damaged during an animation "
+                    "(Ctrl-F12) or command-line render, render it black with a warning instead of stopping the render "
                     "(a single interactive F12 always goes on with a warning)")
 
 
-CLASSES = [HyperGSClipSettings, HyperGSSceneSettings]
+CLASSES = [HyperGSOverride, HyperGSClipSettings, HyperGSSceneSettings]

@@ -1,6 +1,6 @@
 """The encode options a user chooses and what they mean, in one place: a Quality preset (Draft /
 Standard / High: the core's encode.QUALITY, a cell size in source pixels and refine steps) or Custom
-values (cell size or Gaussian count, refine steps), turned into an EncodeRequest; and what the dialogs
+values (cell size or Gaussian count, refine steps), read as the core's EncodeSettings; and what the dialogs
 show before an encode starts: the Gaussians per frame at each source's own resolution (they scale
 with it), the frames, and an estimate of time and size (encode.estimate).
 
@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 from bpy.props import EnumProperty, FloatProperty, IntProperty
 
-from ..hypergs_blender.encode import MAX_CELL, QUALITY, estimate, plan_layout
+from ..hypergs_blender.encode import MAX_CELL, QUALITY, EncodeSettings, Estimate, Layout, estimate
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io.frames import probe
-from .encoder import Runtime, make_encoder
-from .jobs import EncodeRequest
+from ..hypergs_blender.runtime import Runtime, make_encoder
+from .jobs import Source
 
 CUSTOM = "CUSTOM"
 
@@ -46,60 +46,20 @@ class EncodeOptions:
                                           "needs PyTorch)")
 
 
-@dataclass(frozen=True)
-class Settings:
-    """What an encode is asked for: `gaussians` per frame or a `cell` size, and `refine` steps."""
-    gaussians: int | None
-    cell: float | None
-    refine: int
-    note: str = ""  # why it differs from the options (refining needs PyTorch)
-
-
-@dataclass(frozen=True)
-class Source:
-    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end)."""
-    name: str
-    path: str
-    start: int = 0
-    stop: int | None = None
-
-
-def settings(options) -> Settings:
-    """The options as the encoder's settings: a preset's cell size and refine steps, or the custom ones."""
+def settings(options) -> EncodeSettings:
+    """The options as the encode's settings (a preset's, or the custom ones), as this Blender can run them."""
     if options.quality == CUSTOM:
-        gaussians, cell = (options.gaussian_count, None) if options.gaussian_count else (None, options.cell_size)
-        refine = options.refine_steps
+        chosen = EncodeSettings.choose(gaussians=options.gaussian_count or None, cell=options.cell_size,
+                                       refine=options.refine_steps)
     else:
-        preset = QUALITY[options.quality.lower()]
-        gaussians, cell, refine = None, preset["cell"], preset["refine"]
-    if refine and not refine_available():
-        return Settings(gaussians, cell, 0, f"not refined: refining needs PyTorch, which this Blender's "
-                                            f"Python lacks ({refine} steps asked)")
-    return Settings(gaussians, cell, refine)
-
-
-def request(source: Source, chosen: Settings) -> EncodeRequest:
-    return EncodeRequest(source.path, chosen.gaussians, chosen.cell, chosen.refine, source.start, source.stop)
+        chosen = EncodeSettings.choose(options.quality.lower())
+    return chosen.runnable()
 
 
 def copy_options(source, target) -> None:
     """Copy the encode options (e.g. an operator's into the clip's settings, for Re-encode)."""
     for name in ("quality", "cell_size", "gaussian_count", "refine_steps"):
         setattr(target, name, getattr(source, name))
-
-
-_refine: list[bool] = []
-
-
-def refine_available() -> bool:
-    """Whether refining can run here (it needs torch, which Blender's Python does not ship)."""
-    if not _refine:
-        try:
-            import torch  # noqa: F401
-            _refine.append(True)
-        except ImportError:
-            _refine.append(False)
-    return _refine[0]
 
 
 _probed: dict = {}
@@ -125,12 +85,12 @@ class Plan:
     source: Source
     width: int
     height: int
-    layout: object  # encode.Layout
+    layout: Layout
     frames: int
-    estimate: object  # encode.Estimate
+    estimate: Estimate
 
 
-def plan(sources: list[Source], chosen: Settings, runtime: Runtime) -> list[Plan]:
+def plan(sources: list[Source], chosen: EncodeSettings, runtime: Runtime) -> list[Plan]:
     """The layout and estimate of each source. Raises HyperGSError (a source or the encoder's problem)."""
     encoder = make_encoder(runtime)  # loaded once; the encode uses it too
     plans = []
@@ -138,9 +98,9 @@ def plan(sources: list[Source], chosen: Settings, runtime: Runtime) -> list[Plan
         info = source_info(source.path)
         stop = info.num_frames if source.stop is None else min(source.stop, info.num_frames)
         frames = max(0, stop - source.start)
-        layout = plan_layout(info.width, info.height, encoder.stride, chosen.gaussians, chosen.cell)
+        layout = chosen.layout(info.width, info.height, encoder)
         plans.append(Plan(source, info.width, info.height, layout, frames,
-                          estimate(layout, frames, chosen.refine, encoder.name)))
+                          estimate(layout, frames, chosen.refine, encoder.name, runtime.cpu_threads)))
     return plans
 
 
@@ -168,7 +128,7 @@ def draw(layout, options, sources, runtime: Runtime) -> None:
         box.label(text=line, icon=icon)
 
 
-def summary(plans: list[Plan], chosen: Settings) -> list[tuple[str, str]]:
+def summary(plans: list[Plan], chosen: EncodeSettings) -> list[tuple[str, str]]:
     """The dialog's lines (text, icon): per source its Gaussians per frame, then frames, time and size."""
     lines = []
     for p in plans[:3]:
@@ -179,10 +139,11 @@ def summary(plans: list[Plan], chosen: Settings) -> list[tuple[str, str]]:
         lines.append((f"and {len(plans) - 3} more clips", "BLANK1"))
     frames = sum(p.frames for p in plans)
     seconds = sum(p.estimate.seconds for p in plans)
-    size = sum(p.estimate.blend_bytes for p in plans)
+    size = sum(p.estimate.cache_bytes for p in plans)
     refine = f", refined {chosen.refine} steps" if chosen.refine else ""
-    lines.append((f"{frames} frames{refine}: about {_duration(seconds)}, {_megabytes(size)} in the .blend",
-                  "TIME"))
+    threads = plans[0].estimate.threads if plans else 1
+    lines.append((f"{frames} frames{refine}: about {_duration(seconds)} on {threads} CPU thread"
+                  f"{'s' if threads > 1 else ''}, {_megabytes(size)} of frame cache", "TIME"))
     for note in [p.layout.note for p in plans if p.layout.note][:1] + ([chosen.note] if chosen.note else []):
         lines.append((note, "INFO"))
     return lines

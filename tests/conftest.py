@@ -1,8 +1,6 @@
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
+
+import math
 
 import av
 import numpy as np
@@ -40,27 +38,37 @@ def make_pan_clip(path, width=432, height=240, frames=70):
     return path
 
 
-def run_blender_session(script, work: Path, encoder: str, timeout: float, env: dict | None = None) -> dict:
-    """Build the extension zip, then run `script ZIP WORK OUT.json` in a fresh Python (bpy can be
-    imported once per process) with $HYPERGS_ENCODER defaulting to `encoder` and the variables `env`
-    added. Returns the steps' results, with the session's console output under "console" (Blender prints
-render reports there)."""
-    from hypergs_blender.bench.blender import build_zip
-    zip_path = build_zip(work / "dist")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder),
-               **(env or {}))
-    out = work / "session.json"
-    python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
-    proc = subprocess.run([python, str(script), str(zip_path), str(work), str(out)], env=env,
-                          capture_output=True, text=True, timeout=timeout)
-    if not out.is_file():
-        pytest.fail(f"the Blender session died (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return dict(json.loads(out.read_text()), console=proc.stdout + proc.stderr)
+def random_params(rng, t, n, canvas=64):
+    p = np.empty((t, n, 8), np.float32)
+    p[..., 0:2] = rng.uniform(-1, 1, (t, n, 2))
+    p[..., 2:4] = np.exp(rng.uniform(math.log(0.3), math.log(canvas / 4), (t, n, 2)))
+    p[..., 4] = rng.uniform(0, 2 * np.pi, (t, n))
+    p[..., 5:8] = rng.uniform(-0.5, 1.5, (t, n, 3))
+    return p
 
 
-def step(session, name):
-    """One recorded step of a Blender session; fails with its traceback if it raised."""
-    result = session.get(name)
-    assert result is not None, f"step {name} did not run"
-    assert "error" not in result, result["error"]
-    return result
+def moving_params(rng, t, n, canvas=64):
+    """Gaussians that drift slowly, like a real clip (residuals are small)."""
+    p = np.repeat(random_params(rng, 1, n, canvas), t, axis=0)
+    p[..., 0:2] += np.cumsum(rng.normal(0, 0.005, (t, n, 2)), axis=0)
+    p[..., 5:8] += np.cumsum(rng.normal(0, 0.01, (t, n, 3)), axis=0)
+    return p
+
+
+def hard_params(n, seed=0, invalid=True):
+    """Anisotropic Gaussians on a canvas: some off the image, needles (aspect 300), tiny and huge ones,
+    negative colours, and (`invalid`) two invalid ones (zero or NaN scale)."""
+    rng = np.random.default_rng(seed)
+    p = np.empty((n, 8), np.float32)
+    p[:, 0:2] = rng.uniform(-1.4, 1.4, (n, 2))
+    p[:, 2:4] = np.exp(rng.uniform(np.log(0.05), np.log(12), (n, 2)))
+    p[:, 4] = rng.uniform(0, 2 * np.pi, n)
+    p[:, 5:8] = rng.uniform(-0.1, 0.4, (n, 3))
+    p[:8, 2:4] = [[15, 0.05]] * 8  # needles
+    p[8, 2:4] = [400, 300]  # larger than the image, centre off it
+    p[8, 0:2] = [1.5, -1.2]
+    p[9, 0:2] = [9.0, 0.0]  # far off
+    if invalid:
+        p[10, 2] = 0.0  # l11 = 0
+        p[11, 3] = np.nan
+    return p

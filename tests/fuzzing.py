@@ -1,6 +1,6 @@
 """What the fuzz harnesses share (test_hgs_fuzz.py, test_input_fuzz.py): the small limits they run
-under, and `outcome`, which reads one input and checks that it either reads or fails with a one-line
-HyperGSError, within memory and time caps.
+under, `outcome`, which reads one input and checks that it either reads or fails with a one-line
+HyperGSError, within memory and time caps, and the .hgs header's fields (`set_header_field`).
 
 Memory is measured twice: tracemalloc sees every Python and numpy allocation of one input (its peak
 is asserted per input); libraries that allocate in C++ (OpenImageIO, USD) are covered by the process'
@@ -10,17 +10,42 @@ from __future__ import annotations
 
 import os
 import resource
+import struct
 import time
 import tracemalloc
 from contextlib import contextmanager
 
 from hypergs_blender.errors import HyperGSError, LimitError
+from hypergs_blender.io.hgs import _HEADER
 
 MAX_PEAK_BYTES = 400 << 20  # per input, Python and numpy allocations (a legal 2^20-Gaussian frame decodes in less)
 MAX_SECONDS = 10.0  # per input
 # The limits the fuzzing runs under: small, so that every legal input is cheap to read.
 LIMITS = {"HYPERGS_LIMIT_BYTES": str(64 << 20), "HYPERGS_LIMIT_PIXELS": str(1 << 20),
           "HYPERGS_LIMIT_SIDE": str(4096), "HYPERGS_LIMIT_FRAMES": str(1 << 16)}
+
+# (name, struct format) of the fixed header fields of a .hgs file, in order
+HEADER_FIELDS = [("magic", "8s"), ("version", "H"), ("codec", "H"), ("canvas_w", "I"), ("canvas_h", "I"),
+                 ("fps", "d"), ("n", "I"), ("grid_c", "H"), ("grid_r", "H"), ("frames", "I"), ("group", "H"),
+                 ("reserved", "H")] + [(f"bits{i}", "B") for i in range(8)] + \
+                [(f"transform{i}", "B") for i in range(8)] + [(f"range{i}", "d") for i in range(16)] + \
+                [("index_offset", "Q"), ("json_len", "I")]
+assert struct.calcsize("<" + "".join(f for _, f in HEADER_FIELDS)) == _HEADER.size
+
+
+def set_header_field(data: bytearray, name: str, value) -> None:
+    """Write a .hgs header field (test_hgs_fuzz.py's mutations, test_hostile_inputs.py's crafted files);
+    a value its format cannot hold is wrapped."""
+    offset = 0
+    for field, fmt in HEADER_FIELDS:
+        if field == name:
+            try:
+                struct.pack_into("<" + fmt, data, offset, value)
+            except struct.error:
+                struct.pack_into("<" + fmt, data, offset, int(value) % (1 << (8 * struct.calcsize(fmt))))
+            return
+        offset += struct.calcsize("<" + fmt)
+    raise KeyError(name)
 
 
 @contextmanager

@@ -3,18 +3,21 @@ import a movie as Gaussians, render with F12, edit points, Geometry Nodes, save/
 (The Sequencer's conversion: test_blender_sequencer.py.)
 
 bpy can be imported once per process, so one Blender session runs in a subprocess (this file run as
-a script, with torch and numba made unimportable, as in Blender's own Python) and writes what it
-measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
+a script, with torch and numba made unimportable, as in Blender's own Python: tests/blender_session.py)
+and writes what it measured to JSON; the tests below check it. Encoder: $HYPERGS_ENCODER, else ENCODER below.
 $HYPERGS_BLENDER_PYTHON runs the session with another Python that has bpy (e.g. bpy 4.2 LTS).
 """
-import importlib
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import make_pan_clip, run_blender_session, step
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, display_points, mesh_frames,
+                             operator_defaults, run_blender_session, session_main, snapshot, start_session, step,
+                             types_namespace)
+from blender_headless import SAMPLE, install_extension, read_png, render_png
+from conftest import make_pan_clip
+
 from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,7 +49,7 @@ def test_install_and_enable(session):
     assert r["module"].startswith("bl_ext.user_default.hypergs")
     assert "/extensions/user_default/hypergs/" in r["file"]
     assert r["operators"] == ["convert_strip", "edit_frame", "embed_clip", "export_clip", "import_clip",
-                              "import_video", "reencode"]
+                              "import_video", "pack_cache", "reencode", "unpack_cache"]
     assert r["engine"] and not r["torch_importable"]
 
 
@@ -73,9 +76,7 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     assert r["defaults"] == ["AUTO", 0] and "CPUExecutionProvider" in r["available"]
     # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
     assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
-    assert r["policy"] == [["CUDAExecutionProvider", "CPUExecutionProvider"], ["CPUExecutionProvider"],
-                           ["CPUExecutionProvider"], ["CoreMLExecutionProvider", "CPUExecutionProvider"],
-                           ["DmlExecutionProvider", "CPUExecutionProvider"]]
+    # (The policy itself, providers_for, is tested without Blender: test_runtime.py.)
     assert r["preferences_drawn"]
 
 
@@ -94,7 +95,7 @@ def test_cancelled_import_changes_nothing(session):
     r = step(session, "cancel")
     assert r["result"] == ["CANCELLED"]
     assert r["progress_calls"] >= 1 and r["unchanged"], r["diff"]
-    assert r["thread_job_cancelled"]
+    assert r["thread_job_cancelled"] and r["thread_job_left"] == []  # no cache file, nor the folder it made
 
 
 def test_import_video(session):
@@ -111,11 +112,12 @@ def test_import_video(session):
 def test_imported_clip_shows_one_frame_at_a_time(session):
     r = step(session, "clip")
     assert r["result"] == ["FINISHED"]
-    assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == 70 * GAUSSIANS
+    # The mesh holds the scene frame's Gaussians (the rest are in the clip's frame cache).
+    assert r["num_frames"] == 70 and r["gaussians_per_frame"] == GAUSSIANS and r["vertices"] == GAUSSIANS
     assert r["frame_start"] == 1 and r["canvas"] == [432, 240] and r["fps"] == pytest.approx(24)
-    assert r["evaluated_vertices"] == GAUSSIANS
+    assert r["evaluated_vertices"] == GAUSSIANS and r["cache"]
     assert r["engine"] == "HYPERGS" and r["view_transform"] == "Standard"
-    assert r["attributes"] == {"color": "FLOAT_COLOR", "frame": "INT", "rotation": "FLOAT", "scale": "FLOAT2"}
+    assert r["attributes"] == {"color": "FLOAT_COLOR", "rotation": "FLOAT", "scale": "FLOAT2"}
     assert r["psnr"] > 10 and abs(r["psnr"] - r["reference_psnr"]) < 1.0
     # What ran, shown in the panel and the report.
     assert r["encoder"] == ("floor" if os.environ.get("HYPERGS_ENCODER") == "floor" else "network-onnx on CPU (all cores)")
@@ -150,7 +152,7 @@ def test_moving_a_point_in_edit_mode_changes_the_render_there(session):
 
 def test_delete_and_recolour_in_edit_mode_show_in_render(session):
     r = step(session, "delete_recolour")
-    assert r["points_in_frame"] == GAUSSIANS - 1 and r["total"] == 70 * GAUSSIANS - 1
+    assert r["points_in_frame"] == GAUSSIANS - 1 and r["points_in_other_frame"] == GAUSSIANS
     assert r["recoloured"] == [1.0, 0.0, 0.0, 1.0]
     assert r["psnr_vs_core_edited"] > 40
 
@@ -163,42 +165,37 @@ def test_geometry_nodes_set_position_shows_in_render(session):
 
 def test_save_and_reload_keeps_every_frame(session):
     r = step(session, "save_reload")
-    assert r["attributes_equal"] and r["settings_equal"]
-    assert r["frames_after"] == list(range(70)) and r["vertices"] == 70 * GAUSSIANS - 1
+    assert r["frames_equal"] and r["settings_equal"]
+    assert r["edited_frames"] == [34, 49] and r["vertices_at_50"] == GAUSSIANS - 1
     assert r["render_psnr_vs_before"] > 50
 
 
 def test_edit_current_frame_shows_only_that_frame(session):
     r = step(session, "edit_frame")
     assert r["mode"] == "EDIT"
-    assert r["visible"] == GAUSSIANS and r["visible_frames"] == [r["clip_frame"]]
+    assert r["visible"] == GAUSSIANS and r["shown"] == r["clip_frame"]
 
 
 def test_reencode_replaces_points_and_keeps_modifiers(session):
     r = step(session, "reencode")
     assert r["result"] == ["FINISHED"]
-    assert (r["vertices"], r["gaussians_per_frame"]) == (70 * REENCODED, REENCODED)
-    assert r["modifiers"] == ["HyperGS Frames", "Shift"] and r["display_points"] in (None, REENCODED)
+    assert (r["vertices"], r["gaussians_per_frame"]) == (REENCODED, REENCODED)
+    assert r["modifiers"] == ["HyperGS Points", "Shift"] and r["display_points"] in (None, REENCODED)
     assert r["psnr"] != r["psnr_before"]
-    assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the old mesh is gone, its name kept
+    assert r["mesh"] == CLIP_NAME and r["meshes"] == 1  # the edited frames' meshes are gone (discarded)
 
 
 # ----------------------------------------------------------------------------------------------------
 # Blender side (run as a script: python test_blender_addon.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    results = {}
-    record = job.step_recorder(results, out_path)
-    CLIP = Path(work) / f"{CLIP_NAME}.mp4"
-
-    bpy = job.start_blender(Path(work) / "user")
+    CLIP = work / f"{CLIP_NAME}.mp4"
+    bpy, record, results = start_session(work, out_path)
     ctx = {}
 
     @record("install")
     def _():
-        addon = job.install_extension(bpy, zip_path)
+        addon = install_extension(bpy, zip_path)
         ctx["addon"] = addon
         return dict(module=addon.__name__, file=addon.__file__,
                     operators=sorted(n for n in dir(bpy.ops.hypergs) if not n.startswith("_")),
@@ -207,13 +204,12 @@ def run_session(zip_path, work, out_path):
                     torch_importable=_importable("torch"))
 
     addon = ctx["addon"]
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.io.images import resize_exact
     from hypergs_blender.metrics import psnr
-    from hypergs_blender.points import points_to_params
     from hypergs_blender.render import render_frames, render_params
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = 24, 1.0
 
@@ -252,7 +248,7 @@ def run_session(zip_path, work, out_path):
 
     @record("bundled_encoder")
     def _():
-        encoder_module = _import(addon, "ops.encoder")
+        encoder_module = addon_module(addon, "hypergs_blender.runtime")
         weights = Path(addon.__file__).parent / "hypergs_blender" / "weights"
         has_onnx = any(weights.glob("*.onnx"))
         saved = os.environ.get("HYPERGS_ENCODER")
@@ -266,7 +262,7 @@ def run_session(zip_path, work, out_path):
             raised = False
             if error is not None:  # the operator reports it and changes nothing
                 try:
-                    bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE))
+                    bpy.ops.hypergs.import_video(filepath=str(SAMPLE))
                 except RuntimeError:
                     raised = True
             unchanged = snapshot(bpy) == before
@@ -277,7 +273,7 @@ def run_session(zip_path, work, out_path):
 
     @record("providers")
     def _():
-        encoder_module, prefs_module = _import(addon, "ops.encoder"), _import(addon, "ops.preferences")
+        encoder_module, prefs_module = addon_module(addon, "hypergs_blender.runtime"), addon_module(addon, "ops.preferences")
         prefs = bpy.context.preferences.addons[prefs_module.ADDON].preferences
         defaults = [prefs.device, prefs.threads]
         prefs.device, prefs.threads = "CUDAExecutionProvider", 1
@@ -292,21 +288,17 @@ def run_session(zip_path, work, out_path):
             os.environ["HYPERGS_ENCODER"] = saved or ""
             prefs.device, prefs.threads = defaults
             encoder_module._cache.clear()
-        cuda, dml, coreml, cpu = encoder_module.PROVIDERS
-        policy = [encoder_module.providers_for("AUTO", [cuda, cpu]), encoder_module.providers_for(dml, [cuda, cpu]),
-                  encoder_module.providers_for(cpu, [coreml, cpu]), encoder_module.providers_for("AUTO", [coreml, cpu]),
-                  encoder_module.providers_for(dml, [cuda, dml, cpu])]
         layout = Recorder()
         type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
         return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
-                    policy=policy, preferences_drawn=[list(c) for c in layout.calls])
+                    preferences_drawn=[list(c) for c in layout.calls])
 
     @record("import_dialog")
     def _():
         op = bpy.types.HYPERGS_OT_import_video
         out = {}
-        for name, path, frames in (("pan", CLIP, {}), ("sample", job.SAMPLE, dict(first_frame=11, last_frame=40)),
-                                   ("reversed", job.SAMPLE, dict(first_frame=10, last_frame=5))):
+        for name, path, frames in (("pan", CLIP, {}), ("sample", SAMPLE, dict(first_frame=11, last_frame=40)),
+                                   ("reversed", SAMPLE, dict(first_frame=10, last_frame=5))):
             layout = Recorder()
             options = dict(operator_defaults(bpy, op), filepath=str(path), **frames)
             namespace = types_namespace(layout=layout, **options)
@@ -318,7 +310,7 @@ def run_session(zip_path, work, out_path):
 
     @record("cancel")
     def _():
-        plan = _import(addon, "hypergs_blender.encode").EncodePlan
+        plan = addon_module(addon, "hypergs_blender.encode").EncodePlan
         original = plan.chunks
         calls = []
 
@@ -336,18 +328,21 @@ def run_session(zip_path, work, out_path):
         finally:
             plan.chunks = original
         after = snapshot(bpy)
-        jobs = _import(addon, "ops.jobs")
-        threaded = jobs.EncodeJob([jobs.EncodeRequest(str(CLIP), 500, None)]).start()
+        jobs = addon_module(addon, "ops.jobs")
+        chosen = addon_module(addon, "hypergs_blender.encode").EncodeSettings(gaussians=500)
+        target = Path(work) / "cancelled" / "clip.hgs"
+        threaded = jobs.EncodeJob([jobs.Source(CLIP_NAME, str(CLIP))], [str(target)], chosen).start()
         threaded.cancel()
         threaded.join(60)
         return dict(result=sorted(result), progress_calls=len(calls), unchanged=before == after,
-                    diff=diff(before, after), thread_job_cancelled=type(threaded.error).__name__ == "Cancelled")
+                    diff=diff(before, after), thread_job_cancelled=type(threaded.error).__name__ == "Cancelled",
+                    thread_job_left=[str(p) for p in target.parent.parent.glob("cancelled*")])
 
     @record("import_video")
     def _():
         for o in list(bpy.data.objects):  # an empty scene, as in a Video Editing file: no camera either
             bpy.data.objects.remove(o)
-        result = bpy.ops.hypergs.import_video(filepath=str(job.SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
+        result = bpy.ops.hypergs.import_video(filepath=str(SAMPLE), quality="DRAFT", first_frame=11, last_frame=40)
         obj = bpy.data.objects["sample"]
         s = obj.hypergs
         out = dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
@@ -359,7 +354,7 @@ def run_session(zip_path, work, out_path):
         bpy.data.meshes.remove(obj.data)  # the renders below show the pan clip alone
         return out
 
-    reference = encode_video(str(CLIP), encoder, REQUESTED)  # what Quality: Custom asks for
+    reference = encode_video(str(CLIP), encoder, EncodeSettings(gaussians=REQUESTED))  # what Quality: Custom asks for
     truth = {i: f for i, f in iter_frames(str(CLIP), [f - 1 for f in RENDER_FRAMES])}
 
     @record("clip")
@@ -374,7 +369,7 @@ def run_session(zip_path, work, out_path):
         ref_psnr = float(np.mean([psnr(render_frames(reference, 432, 240, [i])[0], f / np.float32(255))
                                   for i, f in truth.items()]))
         return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
-                    vertices=len(obj.data.vertices), frame_start=s.frame_start,
+                    vertices=len(obj.data.vertices), frame_start=s.frame_start, cache=s.cache is not None,
                     canvas=[s.canvas_width, s.canvas_height],
                     fps=s.fps, evaluated_vertices=len(ev.data.vertices),
                     engine=scene.render.engine, view_transform=scene.view_settings.view_transform,
@@ -389,8 +384,8 @@ def run_session(zip_path, work, out_path):
         scene.render.resolution_x, scene.render.resolution_y = width, height
         scene.render.resolution_percentage = 100
         png = Path(work) / f"{name}.png"
-        seconds = job.render_png(bpy, scene, frame, png)
-        return job.read_png(bpy, png), seconds
+        seconds = render_png(bpy, scene, frame, png)
+        return read_png(bpy, png), seconds
 
     def core_render(params, width, height):
         return np.clip(render_params(params, 432, 240, width, height), 0, 1)
@@ -418,15 +413,15 @@ def run_session(zip_path, work, out_path):
         scene.render.filepath = str(Path(work) / "anim" / "f_####")
         bpy.ops.render.render(animation=True)
         files = sorted(p.name for p in (Path(work) / "anim").glob("f_*.png"))
-        first, last = (job.read_png(bpy, Path(work) / "anim" / name) for name in (files[0], files[-1]))
+        first, last = (read_png(bpy, Path(work) / "anim" / name) for name in (files[0], files[-1]))
         scene.frame_start, scene.frame_end = 1, 70
         return dict(files=files, first_vs_last_psnr=float(psnr(last, first)))
 
-    def frame_params(mesh, clip_frame):
-        pts = read_mesh(mesh)
-        keep = pts["frame"] == clip_frame
-        return points_to_params(pts["position"][keep], pts["scale"][keep], pts["rotation"][keep],
-                                pts["color"][keep], 432, 240), np.flatnonzero(keep)
+    def frame_params(clip_frame):
+        """The clip frame's parameters as the mesh holds them there (the scene goes to it), and the
+        vertex index of each."""
+        params = mesh_frames(bpy, obj, [clip_frame])[0]
+        return params, np.arange(len(params))
 
     W, H = 864, 480
 
@@ -436,7 +431,7 @@ def run_session(zip_path, work, out_path):
         frame, clip_frame = 35, 34
         before, _ = f12(frame, W, H, "move_before")
         other_before, _ = f12(1, W, H, "move_other_before")
-        params, index = frame_params(obj.data, clip_frame)
+        params, index = frame_params(clip_frame)
         k = int(np.argmax(params[:, 5:8].sum(1) * (np.abs(params[:, 0]) < 0.6) * (np.abs(params[:, 1]) < 0.6)))
         vertex = int(index[k])
         delta = np.array([0.35, 0.25, 0.0])  # plane units (canvas height = 2)
@@ -449,7 +444,7 @@ def run_session(zip_path, work, out_path):
         bpy.ops.object.mode_set(mode="OBJECT")
         after, _ = f12(frame, W, H, "move_after")
         other_after, _ = f12(1, W, H, "move_other_after")
-        edited, _ = frame_params(obj.data, clip_frame)
+        edited, _ = frame_params(clip_frame)
         change = np.abs(after - before).max(-1)
         old = ((params[k, 0] + 1) * W / 2, (params[k, 1] + 1) * H / 2)
         new = ((edited[k, 0] + 1) * W / 2, (edited[k, 1] + 1) * H / 2)
@@ -468,8 +463,7 @@ def run_session(zip_path, work, out_path):
         import bmesh
         frame, clip_frame = 50, 49
         bpy.context.view_layer.objects.active = obj
-        scene.frame_set(frame)
-        params, index = frame_params(obj.data, clip_frame)
+        params, index = frame_params(clip_frame)  # (the scene goes to `frame`)
         order = np.argsort(-params[:, 5:8].sum(1))
         recolour, delete = int(index[order[0]]), int(index[order[1]])
         bpy.ops.hypergs.edit_frame()
@@ -487,12 +481,12 @@ def run_session(zip_path, work, out_path):
         select(delete)
         bpy.ops.mesh.delete(type="VERT")
         bpy.ops.object.mode_set(mode="OBJECT")
-        pts = read_mesh(obj.data)
+        in_frame = len(obj.data.vertices)
+        recoloured = list(obj.data.attributes["color"].data[recolour - (delete < recolour)].color)
         after, _ = f12(frame, W, H, "recolour_after")
-        edited, _ = frame_params(obj.data, clip_frame)
-        return dict(points_in_frame=int((pts["frame"] == clip_frame).sum()), total=len(pts["frame"]),
-                    recoloured=pts["color"][recolour - (delete < recolour)].tolist(),
-                    psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))))
+        edited, _ = frame_params(clip_frame)
+        return dict(points_in_frame=in_frame, points_in_other_frame=len(frame_params(clip_frame + 1)[0]),
+                    recoloured=recoloured, psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))))
 
     @record("geometry_nodes")
     def _():
@@ -501,30 +495,31 @@ def run_session(zip_path, work, out_path):
         mod = obj.modifiers.new("Shift", "NODES")
         mod.node_group = set_position_group(bpy, (0.25, 0.0, 0.0))
         shifted, _ = f12(frame, W, H, "gn_after")
-        params, _ = frame_params(obj.data, frame - 1)
+        params, _ = frame_params(frame - 1)
         params[:, 0] += 0.25 / (432 / 240)  # plane x -> canvas x
         return dict(psnr_vs_unmodified=float(psnr(shifted, plain)),
                     psnr_vs_core_shifted=float(psnr(shifted, core_render(params, W, H))))
 
     @record("save_reload")
     def _():
-        before_attrs = read_mesh(obj.data)
+        checked = (9, 34, 49)  # clip frames: one as encoded, two edited (override meshes)
+        before_frames = mesh_frames(bpy, obj, checked)
         before_settings = settings(obj)
         before_render, _ = f12(35, W, H, "reload_before")
         path = Path(work) / "clip.blend"
         bpy.ops.wm.save_as_mainfile(filepath=str(path))
         bpy.ops.wm.open_mainfile(filepath=str(path))
         again = bpy.data.objects[CLIP_NAME]
-        after_attrs = read_mesh(again.data)
+        after_frames = mesh_frames(bpy, again, checked)
         sc = bpy.context.scene
-        sc.frame_set(35)
         png = Path(work) / "reload_after.png"
-        job.render_png(bpy, sc, 35, png)
-        after_render = job.read_png(bpy, png)
+        render_png(bpy, sc, 35, png)
+        after_render = read_png(bpy, png)
         ctx["obj"] = again
-        return dict(attributes_equal=all(np.array_equal(before_attrs[k], after_attrs[k]) for k in before_attrs),
+        return dict(frames_equal=all(np.array_equal(a, b) for a, b in zip(before_frames, after_frames)),
                     settings_equal=settings(again) == before_settings,
-                    frames_after=sorted(set(after_attrs["frame"].tolist())), vertices=len(after_attrs["frame"]),
+                    edited_frames=sorted(o.frame for o in again.hypergs.overrides),
+                    vertices_at_50=len(after_frames[2]),
                     render_psnr_vs_before=float(psnr(after_render, before_render)))
 
     @record("edit_frame")
@@ -536,18 +531,16 @@ def run_session(zip_path, work, out_path):
         bpy.ops.hypergs.edit_frame()
         mode = again.mode
         bpy.ops.object.mode_set(mode="OBJECT")
-        pts = read_mesh(again.data)
         hidden = np.empty(len(again.data.vertices), bool)
         again.data.vertices.foreach_get("hide", hidden)
-        return dict(mode=mode, clip_frame=19, visible=int((~hidden).sum()),
-                    visible_frames=sorted(set(pts["frame"][~hidden].tolist())))
+        return dict(mode=mode, clip_frame=19, visible=int((~hidden).sum()), shown=again.data.get("hypergs_frame"))
 
     @record("reencode")
     def _():
         again = ctx["obj"]
         psnr_before = again.hypergs.psnr
         again.hypergs.quality, again.hypergs.gaussian_count = "CUSTOM", 500
-        result = bpy.ops.hypergs.reencode()
+        result = bpy.ops.hypergs.reencode(keep_edits=False)
         s = again.hypergs
         return dict(result=sorted(result), vertices=len(again.data.vertices), gaussians_per_frame=s.gaussians_per_frame,
                     psnr_before=psnr_before, psnr=s.psnr,
@@ -555,16 +548,6 @@ def run_session(zip_path, work, out_path):
                     mesh=again.data.name, meshes=len(bpy.data.meshes))
 
     return results
-
-
-def display_points(bpy, obj):
-    """Points of the evaluated point cloud that shows the clip in Solid mode (None: no API to look)."""
-    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    if not hasattr(bpy.types, "GeometrySet"):
-        return None
-    geometry = bpy.types.GeometrySet.from_evaluated_object(ev)  # keep it alive while reading
-    cloud = geometry.pointcloud
-    return len(cloud.points) if cloud is not None else 0
 
 
 def _vec(values):
@@ -578,25 +561,6 @@ def _importable(name):
         return True
     except ImportError:
         return False
-
-
-def _import(addon, name):
-    import importlib
-    return importlib.import_module(f"{addon.__name__}.{name}")
-
-
-def read_mesh(mesh):
-    n = len(mesh.vertices)
-    out = {"position": np.empty(n * 3, np.float32)}
-    mesh.attributes["position"].data.foreach_get("vector", out["position"])
-    for name, key, size, dtype in (("scale", "vector", 2, np.float32), ("rotation", "value", 1, np.float32),
-                                   ("color", "color", 4, np.float32), ("frame", "value", 1, np.int32)):
-        out[name] = np.empty(n * size, dtype)
-        mesh.attributes[name].data.foreach_get(key, out[name])
-    out["position"] = out["position"].reshape(n, 3)
-    out["scale"] = out["scale"].reshape(n, 2)
-    out["color"] = out["color"].reshape(n, 4)
-    return out
 
 
 def settings(obj):
@@ -618,84 +582,5 @@ def set_position_group(bpy, offset):
     return group
 
 
-def attempt_unchanged(bpy, expect, call) -> dict:
-    """Run an operator call expected to fail: did it raise, with what message, and is the scene
-    (snapshot) exactly as before?"""
-    before = snapshot(bpy)
-    message, raised = "", False
-    try:
-        call()
-    except RuntimeError as e:
-        message, raised = str(e), True
-    after = snapshot(bpy)
-    return dict(raised=raised, message=message, expect=expect, unchanged=before == after, diff=diff(before, after))
-
-
-def snapshot(bpy):
-    """What an operator must not change when it fails or is cancelled: every datablock collection of
-    bpy.data (names), the scene's settings the add-on touches, its strips, the selection."""
-    data = {}
-    for kind in dir(bpy.data):
-        collection = getattr(bpy.data, kind, None)
-        if isinstance(collection, bpy.types.bpy_prop_collection) and kind not in ("window_managers", "screens"):
-            data[kind] = sorted(x.name_full for x in collection if isinstance(x, bpy.types.ID))
-    sc = bpy.context.scene
-    editor = sc.sequence_editor
-    strips = []
-    if editor is not None:
-        compat = importlib.import_module("bl_ext.user_default.hypergs.com.compat")
-        strips = sorted((s.name, s.type, s.mute, s.select, s.channel, compat.strip_range(s))
-                        for s in compat.all_strips(editor))
-    vs = sc.view_settings
-    data["scene"] = dict(engine=sc.render.engine, view=vs.view_transform, look=vs.look, exposure=vs.exposure,
-                         gamma=vs.gamma, camera=sc.camera.name if sc.camera else None,
-                         frames=[sc.frame_start, sc.frame_end, sc.frame_current], strips=strips,
-                         preview=sc.render.sequencer_gl_preview, use_sequencer=sc.render.use_sequencer,
-                         active=bpy.context.view_layer.objects.active.name
-                         if bpy.context.view_layer.objects.active else None,
-                         selected=sorted(o.name for o in bpy.context.view_layer.objects if o.select_get()))
-    return data
-
-
-def diff(a, b):
-    return {k: (a.get(k), b.get(k)) for k in set(a) | set(b) if a.get(k) != b.get(k)}
-
-
-class Recorder:
-    """A stand-in for bpy's UILayout that records label / prop / operator calls."""
-
-    def __init__(self, calls=None, attributes=None):
-        self.__dict__["calls"] = [] if calls is None else calls
-        self.__dict__["attributes"] = {} if attributes is None else attributes
-
-    def __setattr__(self, name, value):  # alert, use_property_split, operator_context, ...
-        self.attributes[name] = value
-
-    def __getattr__(self, name):
-        def call(*args, **kwargs):
-            if name in ("label", "operator"):
-                self.calls.append((name, kwargs.get("text") or (args[0] if args else ""), kwargs.get("icon")))
-            elif name == "prop":
-                self.calls.append((name, args[1], None))
-            return Recorder(self.calls, self.attributes)
-        return call
-
-
-def types_namespace(**kwargs):
-    from types import SimpleNamespace
-    return SimpleNamespace(**kwargs)
-
-
-def operator_defaults(bpy, operator_class) -> dict:
-    """{property: default} of an operator class (what its dialog starts from)."""
-    module, name = operator_class.bl_idname.split(".")
-    properties = getattr(getattr(bpy.ops, module), name).get_rna_type().properties
-    return {p.identifier: p.default for p in properties
-            if p.identifier != "rna_type" and hasattr(p, "default") and not getattr(p, "is_array", False)}
-
-
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    os._exit(0)  # skip bpy's slow teardown
+    session_main(run_session)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hypergs_blender.bench import blender as build_extension
+import build_extension
 
 ROOT = Path(__file__).resolve().parents[1]
 

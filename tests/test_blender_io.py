@@ -1,21 +1,19 @@
-"""Gaussian video files in the real bpy wheel: File > Export / Import (.hgs, .usd, .npz) with edits,
-clips linked to an external .hgs file (render, missing and damaged files), image sequences.
+"""Gaussian video files in the real bpy wheel: File > Export / Import (.hgs, .usd, .npz; an import is copied
+into a frame cache) with edits, clips linked to an external .hgs file (render, missing and damaged files,
+copied into a frame cache), image sequences.
 
-One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares): this
-file run as a script writes what it measured to JSON; the tests below check it.
+One Blender session in a subprocess (tests/blender_session.py): this file run as a script writes what
+it measured to JSON; the tests below check it.
 """
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_blender_session, step
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, read_mesh, snapshot,  # noqa: E402
-                                types_namespace)
+from blender_headless import install_extension, read_png
+from blender_session import (Recorder, addon_module, attempt_unchanged, cache_error, diff, mesh_frames,
+                             run_blender_session, session_main, snapshot, start_session, step, types_namespace)
 
 ENCODER = "floor"
 T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, canvas
@@ -36,8 +34,8 @@ def test_import_npz_builds_a_clip_object(session):
     r = step(session, "import_npz")
     assert r["result"] == ["FINISHED"]
     assert (r["num_frames"], r["gaussians_per_frame"], r["canvas"], r["fps"]) == (T, N, list(CANVAS), 30.0)
-    assert r["vertices"] == T * N and r["modifiers"] == ["HyperGS Frames"] and not r["linked"]
-    assert r["max_error"] < 5e-5
+    assert r["vertices"] == N and r["modifiers"] == ["HyperGS Points"] and not r["linked"] and r["cached"]
+    assert r["cache_error"] <= 1  # the frame cache keeps the clip (float16 where it may)
     assert r["source"] == "/videos/orig.mp4" and r["source_start"] == 5 and r["psnr"] == pytest.approx(31.5)
 
 
@@ -45,20 +43,20 @@ def test_import_npz_builds_a_clip_object(session):
 def test_export_and_reimport_gives_the_same_gaussians(session, suffix):
     r = step(session, "round_trip")[suffix]
     assert r["export"] == ["FINISHED"] and r["import"] == ["FINISHED"]
-    assert r["vertices"] == T * N and r["num_frames"] == T and r["canvas"] == list(CANVAS)
+    assert r["vertices"] == N and r["num_frames"] == T and r["canvas"] == list(CANVAS)
     assert r["fps"] == pytest.approx(30.0) and r["psnr"] == pytest.approx(31.5)
-    if suffix == ".hgs":  # quantized: every value within half a quantization step (8 bits)
+    if suffix == ".hgs":  # quantized: every value within half a quantization step (8 bits), and float16
         assert all(e <= b for e, b in zip(r["errors"], r["bounds"])), r
-        assert r["max_error_vs_file"] < 5e-5  # and the mesh holds exactly what the file decodes to
+        assert r["error_vs_file"] <= 1  # and the clip holds what the file decodes to
     else:
-        assert max(r["errors"]) < 1e-4, r
+        assert r["error_vs_file"] <= 1, r
 
 
 @pytest.mark.parametrize("suffix", [".hgs", ".usd"])
 def test_edits_survive_export_and_import(session, suffix):
     r = step(session, "edits")[suffix]
     assert r["export"] == ["FINISHED"] and r["import"] == ["FINISHED"]
-    assert r["vertices"] == T * N - 1  # the deleted point stays deleted (padded in the file, dropped again)
+    # the deleted point stays deleted (padded in the file, dropped again)
     assert r["frame_counts"] == [N] * 5 + [N - 1] + [N] * (T - 6)
     assert r["moved_error"] < r["moved_bound"]  # the moved point is where it was moved to
     assert r["moved_distance"] > 0.29
@@ -83,6 +81,7 @@ def test_panel_shows_the_linked_file(session):
     r = step(session, "broken")
     fine, embedded = r["panel_fine"], r["panel_embedded"]
     assert ["prop", "linked_path", None] in fine and ["operator", "hypergs.embed_clip", "IMPORT"] in fine
+    assert ["prop", "filepath", None] in embedded  # the frame cache's file
     assert not any(c[2] == "ERROR" for c in fine)
     assert ["operator", "hypergs.edit_frame", "EDITMODE_HLT"] not in fine
     assert ["operator", "hypergs.edit_frame", "EDITMODE_HLT"] in embedded
@@ -118,7 +117,7 @@ def test_embed_export_link_switch_storage(session):
     r = step(session, "storage")
     assert r["embed_missing"]["raised"] and "no such file" in r["embed_missing"]["message"]
     assert r["embed_missing"]["unchanged"], r["embed_missing"]["diff"]
-    assert r["embedded"] == dict(linked=False, vertices=T * N - 1, modifiers=["HyperGS Frames"])  # as edited
+    assert r["embedded"] == dict(linked=False, cached=True, vertices=N, modifiers=["HyperGS Points"])
     assert r["embedded_render_diff"] <= 1 / 255 + 1e-6
     assert r["relinked"] == dict(linked=True, vertices=4, modifiers=[])
     assert r["relinked_render_diff"] <= 1 / 255 + 1e-6
@@ -167,7 +166,7 @@ def test_import_video_reads_an_image_sequence(session):
         c = r[case]
         assert c["result"] == ["FINISHED"] and c["name"] == "frame"
         assert c["num_frames"] == SEQUENCE and c["fps"] == pytest.approx(25.0)
-        assert c["max_error_vs_core"] < 5e-5  # the same frames the core encodes
+        assert c["error_vs_core"] <= 1  # the same frames the core encodes (float16 where the cache may)
 
 
 def test_image_strip_converts_keeping_its_timing(session):
@@ -176,7 +175,7 @@ def test_image_strip_converts_keeping_its_timing(session):
     assert r["num_frames"] == SEQUENCE - 1 and r["frame_start"] == 1  # the clip's scene counts from 1
     assert r["scene_strip"] == ["SCENE", 11, 11 + SEQUENCE - 1]  # trimmed by one at the start
     assert r["source"].endswith("frame_0001.png") and r["source_start"] == 1  # re-encode reads the same
-    assert r["max_error_vs_core"] < 5e-5  # its clip frame 0 is the sequence's second image
+    assert r["error_vs_core"] <= 1  # its clip frame 0 is the sequence's second image
     assert r["still_image"]["raised"] and "single image" in r["still_image"]["message"]
 
 
@@ -184,22 +183,15 @@ def test_image_strip_converts_keeping_its_timing(session):
 # Blender side (run as a script: python test_blender_io.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    work = Path(work)
-    results = {}
-    record = job.step_recorder(results, out_path)
-
-    bpy = job.start_blender(work / "user")
-    addon = job.install_extension(bpy, zip_path)
-    linked = _import(addon, "com.linked")
+    bpy, record, results = start_session(work, out_path)
+    addon = install_extension(bpy, zip_path)
+    linked = addon_module(addon, "com.linked")
     from hypergs_blender.io.codec import Quantizer
-    from hypergs_blender.encode import encode_video
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.gaussians import GaussianVideo
     from hypergs_blender.io.hgs import load_hgs
     from hypergs_blender.io.npz import save_npz
     from hypergs_blender.io.images import write_image
-    from hypergs_blender.points import points_to_params
 
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = 25, 1.0
@@ -220,12 +212,9 @@ def run_session(zip_path, work, out_path):
     save_npz(original, work / "orig.npz")
     bounds = Quantizer.fit(params, 8).max_error()
 
-    def mesh_params(obj):
-        pts = read_mesh(obj.data)
-        order = np.argsort(pts["frame"], kind="stable")
-        p = points_to_params(pts["position"][order], pts["scale"][order], pts["rotation"][order],
-                             pts["color"][order], obj.hypergs.canvas_width, obj.hypergs.canvas_height)
-        return p, pts["frame"][order]
+    def clip_params(obj):
+        """Every frame of a cache clip, as its mesh holds them on frame change: [T, N, 8]."""
+        return np.stack(mesh_frames(bpy, obj, range(obj.hypergs.num_frames)))
 
     def errors(a, b):
         """Per-parameter max error in the codec's domain (log scales, rotation modulo pi)."""
@@ -254,7 +243,7 @@ def run_session(zip_path, work, out_path):
         sc.render.image_settings.color_mode = "RGB"
         sc.render.filepath = str(png)
         result = bpy.ops.render.render(write_still=True)
-        return job.read_png(bpy, png), sorted(result)
+        return read_png(bpy, png), sorted(result)
 
     def attempt(expect, call):
         return attempt_unchanged(bpy, expect, call)
@@ -264,11 +253,10 @@ def run_session(zip_path, work, out_path):
         result = bpy.ops.hypergs.import_clip(filepath=str(work / "orig.npz"))
         obj = bpy.data.objects["orig"]
         s = obj.hypergs
-        p, frames = mesh_params(obj)
         return dict(result=sorted(result), num_frames=s.num_frames, gaussians_per_frame=s.gaussians_per_frame,
                     canvas=[s.canvas_width, s.canvas_height], fps=s.fps, vertices=len(obj.data.vertices),
-                    modifiers=[m.name for m in obj.modifiers], linked=s.linked,
-                    max_error=float(errors(p.reshape(T, N, 8), params).max()), source=s.source,
+                    modifiers=[m.name for m in obj.modifiers], linked=s.linked, cached=s.cache is not None,
+                    cache_error=cache_error(clip_params(obj), params), source=s.source,
                     source_start=s.source_start, psnr=s.psnr)
 
     clip = bpy.data.objects["orig"]
@@ -276,6 +264,7 @@ def run_session(zip_path, work, out_path):
     @record("round_trip")
     def _():
         out = {}
+        held = clip_params(clip)
         for suffix in (".hgs", ".usd", ".usda", ".npz"):
             path = work / f"rt{suffix}"
             activate(clip)
@@ -283,13 +272,15 @@ def run_session(zip_path, work, out_path):
             imported = bpy.ops.hypergs.import_clip(filepath=str(path))
             obj = bpy.context.view_layer.objects.active
             s = obj.hypergs
-            p, _ = mesh_params(obj)
+            p = clip_params(obj)
             row = {"export": sorted(exported), "import": sorted(imported), "vertices": len(obj.data.vertices),
                    "num_frames": s.num_frames, "canvas": [s.canvas_width, s.canvas_height], "fps": s.fps,
-                   "psnr": s.psnr, "errors": errors(p.reshape(T, N, 8), params).tolist(),
-                   "bounds": (bounds + 1e-5).tolist()}
-            if suffix == ".hgs":
-                row["max_error_vs_file"] = float(errors(p.reshape(T, N, 8), load_hgs(path).params).max())
+                   "psnr": s.psnr}
+            if suffix == ".hgs":  # the file's quantization of what the clip held, then the cache's float16
+                row.update(errors=errors(load_hgs(path).params, held).tolist(), bounds=(bounds + 1e-5).tolist(),
+                           error_vs_file=cache_error(p, load_hgs(path).params))
+            else:
+                row["error_vs_file"] = cache_error(p, held)
             out[suffix] = row
             bpy.data.meshes.remove(obj.data)
         return out
@@ -298,37 +289,48 @@ def run_session(zip_path, work, out_path):
     def _():
         import bmesh
         activate(clip)
-        pts = read_mesh(clip.data)
-        moved = int(np.flatnonzero(pts["frame"] == 3)[17])
-        target = pts["position"][moved] + np.array([0.3, -0.2, 0.0], np.float32)
-        deleted = int(np.flatnonzero(pts["frame"] == 5)[40])  # after `moved`: its index stays
-        bpy.ops.object.mode_set(mode="EDIT")
-        bm = bmesh.from_edit_mesh(clip.data)
-        bm.verts.ensure_lookup_table()
-        bm.verts[moved].co = target.tolist()
-        bm.verts.remove(bm.verts[deleted])
-        bmesh.update_edit_mesh(clip.data)
+
+        def edit(frame, change):
+            """Edit Mode on clip frame `frame`: change(edit mesh's vertices)."""
+            bpy.context.scene.frame_set(clip.hypergs.frame_start + frame)
+            bpy.ops.object.mode_set(mode="EDIT")
+            bm = bmesh.from_edit_mesh(clip.data)
+            bm.verts.ensure_lookup_table()
+            change(bm.verts)
+            bmesh.update_edit_mesh(clip.data)
+
+        moved = {}
+
+        def move(verts):
+            moved["before"] = tuple(verts[17].co)
+            verts[17].co.x += 0.3
+            verts[17].co.y -= 0.2
+            moved["target"] = tuple(verts[17].co)
+        edit(3, move)
+        bpy.ops.object.mode_set(mode="OBJECT")
+        edit(5, lambda verts: verts.remove(verts[40]))
         exported = {}
         for suffix in (".hgs", ".usd"):  # straight from Edit Mode
             exported[suffix] = sorted(bpy.ops.hypergs.export_clip(filepath=str(work / f"edited{suffix}")))
         bpy.ops.object.mode_set(mode="OBJECT")
-        edited = read_mesh(clip.data)
+        edited = mesh_frames(bpy, clip, range(T))
         out = {}
         for suffix in (".hgs", ".usd"):
             imported = bpy.ops.hypergs.import_clip(filepath=str(work / f"edited{suffix}"))
             obj = bpy.context.view_layer.objects.active
-            again = read_mesh(obj.data)
+            again = mesh_frames(bpy, obj, range(T))
+            bpy.context.scene.frame_set(obj.hypergs.frame_start + 3)
+            moved_now = tuple(obj.data.vertices[17].co)
             bpy.data.meshes.remove(obj.data)
-            same = len(again["frame"]) == len(edited["frame"])
+            same = [len(a) for a in again] == [len(e) for e in edited]
             # quantization error bound in plane units (x: canvas x * aspect), doubled: the edit moved the ranges
             tol = 1e-4 if suffix == ".usd" else 2 * max(bounds[0] * CANVAS[0] / CANVAS[1], bounds[1]) + 1e-4
             out[suffix] = {
-                "export": exported[suffix], "import": sorted(imported), "vertices": len(again["frame"]),
-                "frame_counts": np.bincount(again["frame"], minlength=T).tolist(),
-                "moved_error": float(np.abs(again["position"][moved] - target).max()), "moved_bound": tol,
-                "moved_distance": float(np.abs(target - pts["position"][moved]).max()),
-                "max_error": float(np.abs(again["position"] - edited["position"]).max()) if same else 1e9,
-                "bound": tol}
+                "export": exported[suffix], "import": sorted(imported), "frame_counts": [len(a) for a in again],
+                "moved_error": float(np.abs(np.subtract(moved_now, moved["target"])).max()), "moved_bound": tol,
+                "moved_distance": float(np.abs(np.subtract(moved["target"], moved["before"])).max()),
+                "max_error": max(float(np.abs(a[:, :2] - e[:, :2]).max()) for a, e in zip(again, edited))
+                if same else 1e9, "bound": tol}
         activate(clip)
         return out
 
@@ -368,13 +370,14 @@ def run_session(zip_path, work, out_path):
                     edit_frame_poll=poll["edit_frame"], reencode_poll=poll["reencode"])
 
     lobj, eobj = bpy.data.objects["linked"], bpy.data.objects["embedded"]
-    panel = _import(addon, "ui").HYPERGS_PT_clip
+    panel = addon_module(addon, "ui").HYPERGS_PT_clip
 
     def panel_draw(obj):
         """What the clip panel draws for `obj`: [(call, text or property, icon)] (a recording layout)."""
         activate(obj)
         layout = Recorder()
-        panel.draw(types_namespace(layout=layout, draw_linked=panel.draw_linked), bpy.context)
+        panel.draw(types_namespace(layout=layout, draw_linked=panel.draw_linked, draw_cache=panel.draw_cache),
+                   bpy.context)
         return layout.calls
     reference, _ = render(4, "linked_reference", [lobj])
 
@@ -410,7 +413,7 @@ def run_session(zip_path, work, out_path):
                              restored_matches=bool(np.abs(again - reference).max() == 0))
         out["panel_fine"] = panel_draw(lobj)
         out["panel_embedded"] = panel_draw(eobj)
-        stop = _import(addon, "engine").missing_clips_stop
+        stop = addon_module(addon, "engine").missing_clips_stop
         out["policy"] = [[*case, stop(*case)] for case in ((False, False, False), (True, False, False),
                                                              (False, True, False), (True, True, True))]
         return out
@@ -423,8 +426,9 @@ def run_session(zip_path, work, out_path):
         (work / "moved.hgs").rename(hgs)
         activate(lobj)
         bpy.ops.hypergs.embed_clip()
-        embedded = dict(linked=lobj.hypergs.linked, vertices=len(lobj.data.vertices),
-                        modifiers=[m.name for m in lobj.modifiers])
+        bpy.context.scene.frame_set(4)
+        embedded = dict(linked=lobj.hypergs.linked, cached=lobj.hypergs.cache is not None,
+                        vertices=len(lobj.data.vertices), modifiers=[m.name for m in lobj.modifiers])
         image, _ = render(4, "embedded_now", [lobj])
         activate(lobj)
         bpy.ops.hypergs.export_clip(filepath=str(work / "relinked.hgs"), link=True)
@@ -515,7 +519,7 @@ def run_session(zip_path, work, out_path):
     for o in list(bpy.data.objects):
         if o.type == "MESH":
             bpy.data.meshes.remove(o.data)
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
     folder = work / "seq"
     folder.mkdir()
     yy, xx = np.mgrid[0:48, 0:64] / np.float32(48)
@@ -524,21 +528,20 @@ def run_session(zip_path, work, out_path):
         rgb[(xx - 0.2 - 0.15 * i) ** 2 + (yy - 0.5) ** 2 < 0.04] = (1.0, 0.9, 0.2)
         write_image(folder / f"frame_{i + 1:04d}.png", rgb)
     (folder / "notes.txt").write_text("not a frame")
-    reference_video = encode_video(str(folder / "frame_####.png"), encoder, 250)
+    reference_video = encode_video(str(folder / "frame_####.png"), encoder, EncodeSettings(gaussians=250))
 
     def compare(obj, first):
-        p, _ = mesh_params(obj)
-        ref = reference_video.params[first:first + obj.hypergs.num_frames]
-        return float(np.abs(p.reshape(ref.shape) - ref).max()) if p.size == ref.size else 1e9
+        return cache_error(clip_params(obj), reference_video.params[first:first + obj.hypergs.num_frames])
 
     @record("import_sequence")
     def _():
+        scene.render.fps = 25  # (File > Import of the .npz clip set 30): image files take the scene's rate
         out = {}
         for case, path in (("file", folder / "frame_0003.png"), ("pattern", folder / "frame_####.png")):
             result = bpy.ops.hypergs.import_video(filepath=str(path), quality="CUSTOM", gaussian_count=250)
             obj = bpy.context.view_layer.objects.active
             out[case] = dict(result=sorted(result), name=obj.name.split(".")[0], num_frames=obj.hypergs.num_frames,
-                             fps=obj.hypergs.fps, max_error_vs_core=compare(obj, 0))
+                             fps=obj.hypergs.fps, error_vs_core=compare(obj, 0))
             bpy.data.meshes.remove(obj.data)
         return out
 
@@ -549,7 +552,7 @@ def run_session(zip_path, work, out_path):
         strip = strips.new_image(name="seq", filepath=str(folder / "frame_0001.png"), channel=2, frame_start=10)
         for i in range(2, SEQUENCE + 1):
             strip.elements.append(f"frame_{i:04d}.png")
-        compat = _import(addon, "com.compat")
+        compat = addon_module(addon, "com.compat")
         if hasattr(strip, "left_handle_offset"):  # trimmed: the strip starts at scene frame 11 with the second image
             strip.left_handle_offset = 1
         else:
@@ -569,7 +572,7 @@ def run_session(zip_path, work, out_path):
         still_image = attempt("single image", lambda: bpy.ops.hypergs.convert_strip())
         return dict(result=sorted(result), muted=strip.mute, num_frames=s.num_frames, frame_start=s.frame_start,
                     scene_strip=[scene_strip.type, *compat.strip_range(scene_strip)],
-                    source=s.source, source_start=s.source_start, max_error_vs_core=compare(obj, 1),
+                    source=s.source, source_start=s.source_start, error_vs_core=compare(obj, 1),
                     still_image=still_image)
 
     @record("paths")
@@ -624,8 +627,4 @@ def run_session(zip_path, work, out_path):
 
 
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)  # skip bpy's slow teardown
+    session_main(run_session)

@@ -124,3 +124,14 @@ def test_regular_clip_has_no_frame_counts_and_bad_points_are_left_out():
     # malformed counts are ignored
     video.source[FRAME_COUNTS] = ["a", None]
     assert frame_counts(video).tolist() == [3, 3]
+
+
+@pytest.mark.parametrize("fps, stored", [(30.0, (30, 1.0)), (24.0, (24, 1.0)), (29.97003, (30, 1.001)),
+                                         (23.976, (24, 1.001)), (59.94, (60, 1.001)), (12.5, (12, 0.96)),
+                                         (0.5, (1, 2.0))])
+def test_a_clip_frame_rate_as_blender_stores_it(fps, stored):
+    """Whole rates and the NTSC ones as Blender's presets write them (base 1 or 1.001); others exactly."""
+    from hypergs_blender.points import blender_fps
+    whole, base = blender_fps(fps)
+    assert (whole, base) == pytest.approx(stored) and isinstance(whole, int)
+    assert whole / base == pytest.approx(fps, rel=1e-4)

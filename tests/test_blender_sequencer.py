@@ -3,20 +3,17 @@ scene rendered by HyperGS that a scene strip plays with the original timing; the
 the scene strip plays -> F12 of the Sequencer's output against the source); menus, dialog; failures,
 cancels and half-done conversions leave the file as it was.
 
-One Blender session in a subprocess, as in test_blender_addon.py (whose helpers it shares).
+One Blender session in a subprocess (tests/blender_session.py), as in test_blender_addon.py.
 """
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_blender_session, step
-from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
+from blender_headless import SAMPLE, install_extension, read_png, render_png
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, operator_defaults, run_blender_session,
+                             session_main, snapshot, start_session, step, types_namespace)
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import (Recorder, _import, attempt_unchanged, diff, operator_defaults,  # noqa: E402
-                                snapshot, types_namespace)
+from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
 ENCODER = "floor"  # fast; the matrix (tools/blender_matrix.py) runs the Sequencer with the network
 GAUSSIANS = plan_layout(256, 144, FloorEncoder.stride, cell=QUALITY["draft"]["cell"]).count  # Draft, the sample
@@ -52,7 +49,10 @@ def test_dialog_shows_the_gaussians_per_frame_and_an_estimate(session, preset):
     for name in ("a", "b"):  # each selected strip, at its source's resolution
         assert any(line.startswith(f"{name}: {count:,} Gaussians per frame") and "at 256 x 144" in line
                    for line in labels), labels
-    assert any(line.startswith("22 frames") and "MB in the .blend" in line for line in labels), labels
+    # The time on the CPU threads it assumes (the preferences': one per core here), and the cache's size.
+    threads = os.cpu_count()
+    assert any(line.startswith("22 frames") and f"on {threads} CPU thread" in line and "MB of frame cache" in line
+               for line in labels), labels
     assert ["prop", "quality", None] in drawn and ["prop", "cell_size", None] not in drawn
     # High refines; this Blender's Python has no PyTorch: the dialog says so before anything runs.
     assert any("refining needs PyTorch" in line for line in labels) == (QUALITY[preset.lower()]["refine"] > 0)
@@ -123,19 +123,14 @@ def test_cutting_the_scene_strip_keeps_the_timing(session):
 # Blender side (run as a script: python test_blender_sequencer.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    work = Path(work)
-    results = {}
-    record = job.step_recorder(results, out_path)
-    bpy = job.start_blender(work / "user")
-    addon = job.install_extension(bpy, zip_path)
-    compat = _import(addon, "com.compat")
-    from hypergs_blender.encode import encode_video
+    bpy, record, results = start_session(work, out_path)
+    addon = install_extension(bpy, zip_path)
+    compat = addon_module(addon, "com.compat")
+    from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.frames import iter_frames
     from hypergs_blender.metrics import psnr
     from hypergs_blender.render import render_frames
-    encoder = _import(addon, "ops.encoder").make_encoder()
+    encoder = addon_module(addon, "hypergs_blender.runtime").make_encoder()
 
     scene = bpy.context.scene
     for o in list(bpy.data.objects):  # a Video Editing file: strips only
@@ -149,7 +144,7 @@ def run_session(zip_path, work, out_path):
     strips = compat.top_strips(editor)
     made = {}
     for name, spec in STRIPS.items():
-        strip = strips.new_movie(name=name, filepath=str(job.SAMPLE), channel=spec["channel"],
+        strip = strips.new_movie(name=name, filepath=str(SAMPLE), channel=spec["channel"],
                                  frame_start=spec["content"])
         set_range(strip, spec["first"], spec["end"])
         made[name] = strip
@@ -168,7 +163,7 @@ def run_session(zip_path, work, out_path):
 
     @record("menus")
     def _():
-        ui = _import(addon, "ui")
+        ui = addon_module(addon, "ui")
         recorder = Recorder()
         ui.menu_strip(types_namespace(layout=recorder), bpy.context)
         drawn = [list(c) for c in recorder.calls]
@@ -188,7 +183,7 @@ def run_session(zip_path, work, out_path):
     def _():
         out = {}
         gone = work / "gone.mp4"
-        gone.write_bytes(job.SAMPLE.read_bytes())
+        gone.write_bytes(SAMPLE.read_bytes())
         missing = strips.new_movie(name="missing", filepath=str(gone), channel=5, frame_start=1)
         gone.unlink()
         select("a", "missing")
@@ -198,7 +193,7 @@ def run_session(zip_path, work, out_path):
         out["nothing_convertible"] = attempt("'colour': not a movie strip",
                                              lambda: bpy.ops.hypergs.convert_strip())
         select("a", "b")
-        plan = _import(addon, "hypergs_blender.encode").EncodePlan
+        plan = addon_module(addon, "hypergs_blender.encode").EncodePlan
         original = plan.chunks
         calls = []
 
@@ -215,7 +210,7 @@ def run_session(zip_path, work, out_path):
         after = snapshot(bpy)
         out["cancelled"] = dict(result=sorted(result), encoded=len(calls), unchanged=before == after,
                                 diff=diff(before, after))
-        scene_module = _import(addon, "ops.scene")
+        scene_module = addon_module(addon, "ops.scene")
         add = scene_module.add_strip_scene
         added = []
 
@@ -263,15 +258,15 @@ def run_session(zip_path, work, out_path):
                     selected=sorted(s.name for s in compat.all_strips(editor) if s.select))
 
     sources = sorted({source for _, source in ROUND_TRIP.values()} | {source + 3 for _, source in ROUND_TRIP.values()})
-    truth = {i: f / np.float32(255) for i, f in iter_frames(str(job.SAMPLE), sources)}
-    references = {name: encode_video(str(job.SAMPLE), encoder, cell=QUALITY["draft"]["cell"], start=spec["source"],
+    truth = {i: f / np.float32(255) for i, f in iter_frames(str(SAMPLE), sources)}
+    references = {name: encode_video(str(SAMPLE), encoder, EncodeSettings.choose("draft"), start=spec["source"],
                                      stop=spec["source"] + spec["end"] - spec["first"])
                   for name, spec in STRIPS.items() if name != "c"}
 
     def f12(frame, name):
         png = work / f"{name}.png"
-        job.render_png(bpy, scene, frame, png)
-        return job.read_png(bpy, png)
+        render_png(bpy, scene, frame, png)
+        return read_png(bpy, png)
 
     def compare(image, name, source):
         ref = render_frames(references[name], 256, 144, [source - STRIPS[name]["source"]])[0]
@@ -305,8 +300,4 @@ def set_range(strip, first, end):
 
 
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)  # skip bpy's slow teardown (and bpy 4.2's crash at exit)
+    session_main(run_session)

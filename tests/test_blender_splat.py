@@ -5,21 +5,16 @@ non-square size, the windowed drawing of the viewport, and F12 in a Blender with
 must take the numpy path (bpy 5.0.1 aborts the process when a bl_use_gpu_context engine renders there).
 
 Two Blender sessions in subprocesses (this file run as a script), as in test_blender_addon.py: one as the
-machine is, one with EGL hidden (bench.blender.NO_EGL). The GPU tests skip only where the machine has no
+machine is, one with EGL hidden (tools/blender_headless.NO_EGL). The GPU tests skip only where the machine has no
 EGL display at all (Debian packages libegl1 libegl-mesa0 libgl1-mesa-dri, which .ci/run installs).
 """
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_blender_session, step
-from hypergs_blender.bench.blender import in_gpu_context
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_blender_addon import _import  # noqa: E402
-from test_splat import hard_params  # noqa: E402
+from blender_headless import NO_EGL, in_gpu_context, install_extension
+from blender_session import addon_module, run_blender_session, session_main, start_session, step
+from conftest import hard_params
 
 ENCODER = "floor"  # nothing is encoded here
 SIZE = (333, 201)  # the render size: non-square, odd
@@ -39,7 +34,6 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def no_egl_session(tmp_path_factory):
-    from hypergs_blender.bench.blender import NO_EGL
     return run_blender_session(__file__, tmp_path_factory.mktemp("splat_no_egl"), ENCODER, SESSION_TIMEOUT,
                                env=NO_EGL)
 
@@ -90,27 +84,22 @@ def test_without_egl_f12_takes_the_numpy_path(no_egl_session):
 # Blender side (run as a script: python test_blender_splat.py ZIP WORKDIR OUT.json)
 
 def run_session(zip_path, work, out_path):
-    from hypergs_blender.bench import blender as job
-
-    work = Path(work)
-    results = {}
-    record = job.step_recorder(results, out_path)
-    bpy = job.start_blender(work / "user")
+    bpy, record, results = start_session(work, out_path)
     ctx = {}
 
     @record("install")
     def _():
-        addon = job.install_extension(bpy, zip_path)
+        addon = install_extension(bpy, zip_path)
         ctx["addon"] = addon
-        splat = _import(addon, "engine.splat")
-        engine = _import(addon, "engine").HyperGSRenderEngine
+        splat = addon_module(addon, "engine.splat")
+        engine = addon_module(addon, "engine").HyperGSRenderEngine
         possible = splat.gpu_context_possible()
         return dict(gpu_context_possible=possible, bl_use_gpu_context=engine.bl_use_gpu_context,
-                    egl_still_found=possible and job.NO_EGL.items() <= os.environ.items())
+                    egl_still_found=possible and NO_EGL.items() <= os.environ.items())
 
     addon = ctx["addon"]
-    splat = _import(addon, "engine.splat")
-    geometry = _import(addon, "engine.geometry")
+    splat = addon_module(addon, "engine.splat")
+    geometry = addon_module(addon, "engine.geometry")
     from hypergs_blender.gaussians import GaussianVideo
     from hypergs_blender.io.npz import save_npz
 
@@ -188,13 +177,13 @@ def viewport_window_check(bpy, addon, numpy_reference):
     """What view_draw does, short of the window Blender has none of here: the part of the frame inside the
     region (draw.visible_window), splatted into a SplatImage of that size (inside a render with a GPU context)
     and compared with the same part of the numpy render."""
-    draw = _import(addon, "engine.draw")
-    splat = _import(addon, "engine.splat")
+    draw = addon_module(addon, "engine.draw")
+    splat = addon_module(addon, "engine.splat")
     from hypergs_blender.splat import splat_rows
 
     scene = bpy.context.scene
     scene.frame_set(1)
-    clips = [(p, cw, ch) for _, p, cw, ch in _import(addon, "engine.geometry").evaluated_clips(
+    clips = [(p, cw, ch) for _, p, cw, ch in addon_module(addon, "engine.geometry").evaluated_clips(
         bpy.context.evaluated_depsgraph_get())]
     reference = numpy_reference()[::-1]  # rows top-down, as the windows count them
     # frame rects (x, y, w, h) in a 400 x 300 region, each rendering SIZE, and the windows they must give
@@ -225,7 +214,4 @@ def viewport_window_check(bpy, addon, numpy_reference):
 
 
 if __name__ == "__main__":
-    zip_arg, work_arg, out_arg = sys.argv[1:4]
-    run_session(zip_arg, work_arg, out_arg)
-    sys.stdout.flush()
-    os._exit(0)  # skip bpy's slow teardown
+    session_main(run_session)

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import moving_params, random_params
 from hypergs_blender.io.codec import (ANCHOR, INTRA, MODES, PREVIOUS, CodecError, Quantizer, decode_group,
                                    encode_group, order_stability, to_domain)
 from hypergs_blender.errors import HyperGSError, LimitError
@@ -18,23 +19,6 @@ from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import HgsError, HgsReader, HgsWriter, load_hgs, save_hgs
 
 VIDEO = Path(__file__).resolve().parents[1] / "hypergs_blender" / "samples" / "sample.mp4"  # the bundled sample
-
-
-def random_params(rng, t, n, canvas=64):
-    p = np.empty((t, n, 8), np.float32)
-    p[..., 0:2] = rng.uniform(-1, 1, (t, n, 2))
-    p[..., 2:4] = np.exp(rng.uniform(math.log(0.3), math.log(canvas / 4), (t, n, 2)))
-    p[..., 4] = rng.uniform(0, 2 * np.pi, (t, n))
-    p[..., 5:8] = rng.uniform(-0.5, 1.5, (t, n, 3))
-    return p
-
-
-def moving_params(rng, t, n, canvas=64):
-    """Gaussians that drift slowly, like a real clip (residuals are small)."""
-    p = np.repeat(random_params(rng, 1, n, canvas), t, axis=0)
-    p[..., 0:2] += np.cumsum(rng.normal(0, 0.005, (t, n, 2)), axis=0)
-    p[..., 5:8] += np.cumsum(rng.normal(0, 0.01, (t, n, 3)), axis=0)
-    return p
 
 
 def domain_error(a, b):
@@ -61,6 +45,14 @@ def test_quantizer_error_within_half_a_step(seed, bits, t, n):
     assert np.all(decoded[..., 2:4] > 0)
     # float32 output: allow its rounding on top of half a step
     assert np.all(domain_error(params, decoded) <= q.max_error() * (1 + 1e-5) + 1e-5)
+
+
+def test_ranges_fitted_frame_by_frame_are_those_of_the_whole_clip():
+    params = moving_params(np.random.default_rng(5), 6, 40)
+    whole, streamed = Quantizer.fit(params, 8), Quantizer.fit(iter(params), 8)
+    assert (whole.lo, whole.hi) == (streamed.lo, streamed.hi)
+    with pytest.raises(CodecError, match="NaN"):
+        Quantizer.fit(iter([params[0], np.full((2, 8), np.nan, np.float32)]))
 
 
 def test_rotation_is_taken_modulo_pi():
@@ -199,8 +191,8 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
 
 
 def test_hgs_round_trip_of_floor_encoder_gaussians(tmp_path):
-    from hypergs_blender.encode import FloorEncoder, encode_video
-    video = encode_video(VIDEO, FloorEncoder(), gaussians=256, size=64, num_frames=6)
+    from hypergs_blender.encode import EncodeSettings, FloorEncoder, encode_video
+    video = encode_video(VIDEO, FloorEncoder(), EncodeSettings(gaussians=256), size=64, num_frames=6)
     sizes = {}
     for bits in (8, 4):
         sizes[bits] = save_hgs(video, tmp_path / f"c{bits}.hgs", bits=bits)
@@ -335,6 +327,88 @@ GOLDEN_HGS = bytes.fromhex(
     "0000009ccffe93e30249dde6d176a1ab221d7bd6f281a7d3b1af8f59ce0bb0ed1e801d1a50d563f761227da0150000cd"
     "d12a4448475349020000000701000000000000a80100000000000003000000af02000000000000a40100000300000002"
     "000000279e72ea")
+
+
+# ---- the float16 codec (the frame cache) -------------------------------------------------------------
+
+def float16_error(a, b):
+    """Per-parameter max error: means absolute, the rest relative (rotation: circular, modulo pi)."""
+    err = np.abs(a.astype(np.float64) - b)
+    err[..., 2:] /= np.maximum(np.abs(a[..., 2:]), 1e-30)
+    rot = np.mod(a[..., 4].astype(np.float64) - b[..., 4], np.pi)
+    err[..., 4] = np.minimum(rot, np.pi - rot)
+    return err.reshape(-1, 8).max(axis=0)
+
+
+@pytest.mark.parametrize("group_size", [1, 4])
+def test_float16_round_trip_keeps_the_means_exactly(tmp_path, group_size):
+    rng = np.random.default_rng(11)
+    video = GaussianVideo(moving_params(rng, 9, 300, canvas=1920), 1920, 1080, 30.0, (20, 15), {"path": "x.mp4"})
+    path = tmp_path / "cache.hgs"
+    save_hgs(video, path, group_size=group_size, codec="float16")
+    out = load_hgs(path)
+    assert out.params.dtype == np.float32 and out.params.shape == video.params.shape
+    assert (out.canvas_width, out.canvas_height, out.fps, out.grid, out.source) == (1920, 1080, 30.0, (20, 15),
+                                                                                    video.source)
+    assert np.array_equal(out.params[..., :2], video.params[..., :2])  # float32: a 1080p canvas keeps its means
+    err = float16_error(video.params, out.params)
+    assert np.all(err[2:4] <= 2.0 ** -11) and np.all(err[5:] <= 2.0 ** -11)  # float16's relative rounding
+    assert err[4] <= np.pi * 2.0 ** -11  # rotations modulo pi, then float16
+    assert np.all((out.params[..., 4] >= 0) & (out.params[..., 4] <= np.pi))
+    with HgsReader(path) as reader:
+        assert reader.codec == "float16" and reader.header.version == 2 and reader.info()["codec"] == "float16"
+        assert "bits" not in reader.info()
+        for t in rng.permutation(9).tolist():  # any frame on its own
+            assert np.array_equal(reader.read_frame(t), out.params[t])
+
+
+def test_float16_is_smaller_than_float32_and_larger_than_quantized(tmp_path):
+    video = GaussianVideo(moving_params(np.random.default_rng(12), 6, 2000), 64, 64)
+    f16 = save_hgs(video, tmp_path / "f.hgs", group_size=1, codec="float16")
+    q8 = save_hgs(video, tmp_path / "q.hgs", bits=8)
+    assert q8 < f16 < video.params.nbytes * 0.7
+
+
+def test_float16_writer_clips_and_counts_what_float16_cannot_hold(tmp_path):
+    params = moving_params(np.random.default_rng(13), 2, 10)
+    params[0, 0, 2] = 1e-9  # a scale below float16's smallest normal: raised to it
+    params[1, 3, 6] = 1e6  # a colour past float16's largest: lowered to it
+    params[1, 4, 0] = 1e6  # a mean: float32, kept
+    with HgsWriter(tmp_path / "c.hgs", 64, 64, 10, codec="float16") as writer:
+        writer.write(params)
+    assert writer.clipped == 2
+    out = load_hgs(tmp_path / "c.hgs").params
+    assert out[0, 0, 2] == pytest.approx(2.0 ** -14) and out[1, 3, 6] == 65504.0 and out[1, 4, 0] == 1e6
+    with pytest.raises(HgsError, match="NaN"):
+        with HgsWriter(tmp_path / "d.hgs", 64, 64, 10, codec="float16", group_size=1) as writer:
+            writer.write(np.full((1, 10, 8), np.nan, np.float32))
+    assert not (tmp_path / "d.hgs").exists()
+    with pytest.raises(HgsError, match="unknown .hgs codec"):
+        HgsWriter(tmp_path / "e.hgs", 64, 64, 10, codec="png")
+
+
+def test_float16_decoder_refuses_damaged_payloads():
+    from hypergs_blender.io.codec import decode_float16_group, encode_float16_group
+    params = moving_params(np.random.default_rng(14), 2, 50)
+    payload, _ = encode_float16_group(params)
+    assert all(np.array_equal(a, b) for a, b in zip(decode_float16_group(payload, 2, 50),
+                                                    decode_float16_group(payload, 2, 50)))
+    with pytest.raises(CodecError, match="does not hold"):
+        list(decode_float16_group(payload, 2, 49))  # inflates to another size
+    with pytest.raises(CodecError, match="ends early"):
+        list(decode_float16_group(payload, 3, 50))
+    with pytest.raises(CodecError, match="left over"):
+        list(decode_float16_group(payload, 1, 50))
+    with pytest.raises(CodecError, match="damaged group"):
+        list(decode_float16_group(payload[:4] + b"\x00" * 20 + payload[24:], 2, 50))
+    bad = params[:1].copy()
+    bad[0, 7, 0] = np.nan  # a frame that decodes to NaN (the writer refuses it; a crafted file may hold it)
+    import struct
+    import zlib
+    from hypergs_blender.io.codec import _byte_planes
+    data = zlib.compress(_byte_planes(bad[0, :, :2].astype("<f4")) + _byte_planes(bad[0, :, 2:].astype("<f2")))
+    with pytest.raises(CodecError, match="NaN"):
+        list(decode_float16_group(struct.pack("<I", len(data)) + data, 1, 50))
 
 
 # ---- io.clips, info ---------------------------------------------------------------------------------

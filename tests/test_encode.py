@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from hypergs_blender.commands.cli import main
-from hypergs_blender.encode import (MAX_CELL, Cancelled, EncodePlan, FloorEncoder, encode_frames, encode_video,
-                                    frames_layout, plan_layout)
+from hypergs_blender.encode import (DEFAULT_QUALITY, MAX_CELL, QUALITY, Cancelled, EncodePlan, EncodeSettings,
+                                    FloorEncoder, encode_frames, encode_video, frames_layout, plan_layout)
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.io.clips import load_clip
 from hypergs_blender.io.frames import read_frames
@@ -70,7 +70,7 @@ def test_encode_frames_stretches_back_exactly():
 
 def test_encode_video_chunks_and_metadata(moving_video):
     calls = []
-    video = encode_video(moving_video, FloorEncoder(), cell=6, chunk_frames=4,
+    video = encode_video(moving_video, FloorEncoder(), EncodeSettings(cell=6), chunk_frames=4,
                          progress=lambda done, total: calls.append((done, total)))
     assert video.params.shape == (12, 88, 8) and video.grid == (11, 8)
     assert (video.canvas_width, video.canvas_height, video.fps) == (64, 48, 12.0)
@@ -80,13 +80,13 @@ def test_encode_video_chunks_and_metadata(moving_video):
 
 
 def test_chunking_does_not_change_the_result(moving_video):
-    one = encode_video(moving_video, FloorEncoder(), cell=8, chunk_frames=1)
-    three = encode_video(moving_video, FloorEncoder(), cell=8, chunk_frames=5)
+    one = encode_video(moving_video, FloorEncoder(), EncodeSettings(cell=8), chunk_frames=1)
+    three = encode_video(moving_video, FloorEncoder(), EncodeSettings(cell=8), chunk_frames=5)
     np.testing.assert_array_equal(one.params, three.params)
 
 
 def test_cancel_raises_and_plan_knows_the_output(moving_video):
-    plan = EncodePlan(moving_video, FloorEncoder(), gaussians=64, start=2, stop=10)
+    plan = EncodePlan(moving_video, FloorEncoder(), EncodeSettings(gaussians=64), start=2, stop=10)
     assert plan.indices == list(range(2, 10)) and (plan.width, plan.height) == (64, 48)
     assert plan.layout.count == math.prod(plan.grid)
     with pytest.raises(Cancelled):
@@ -117,16 +117,86 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob("clip.hgs*"))
 
 
-def test_estimate_scales_with_gaussians_frames_and_refine_steps():
-    from hypergs_blender.encode import ENCODE_COSTS, estimate, plan_layout
+def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
+    from hypergs_blender.encode import ENCODE_COSTS, THREAD_GAIN, estimate, plan_layout
     small, large = plan_layout(432, 240, 4, cell=8.0), plan_layout(864, 480, 4, cell=8.0)
     assert large.count == 4 * small.count
     a, b = estimate(small, 10), estimate(large, 10)
-    assert b.seconds == pytest.approx(4 * a.seconds) and b.blend_bytes == 4 * a.blend_bytes
-    assert estimate(small, 20).hgs_bytes == 2 * a.hgs_bytes
+    assert b.seconds == pytest.approx(4 * a.seconds) and b.cache_bytes == 4 * a.cache_bytes
+    longer = estimate(small, 20)
+    assert longer.cache_bytes == 2 * a.cache_bytes and longer.seconds == pytest.approx(2 * a.seconds)
     cost = ENCODE_COSTS["network"]
-    assert a.blend_bytes == small.count * 10 * cost.blend_bytes_per_gaussian
+    # The .blend holds one frame whatever the clip's length; the cache grows with it.
+    assert a.blend_bytes == estimate(small, 1000).blend_bytes == small.count * cost.blend_bytes_per_gaussian
+    assert a.cache_bytes == small.count * 10 * cost.cache_bytes_per_gaussian
     refined = estimate(small, 10, refine=30)
     step = cost.refine_first_s_per_gaussian + 29 * cost.refine_s_per_gaussian_step
     assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step)
     assert estimate(small, 10, encoder="floor").seconds < a.seconds  # the network costs more
+    # More threads speed up the network's pass only, by THREAD_GAIN per thread; the estimate says what it assumed.
+    two = estimate(small, 10, threads=2)
+    predict = cost.predict_s_per_gaussian * small.count * 10
+    assert two.threads == 2 and a.threads == 1
+    assert a.seconds - two.seconds == pytest.approx(predict - predict / (1 + THREAD_GAIN))
+    assert estimate(small, 10, encoder="floor", threads=2).seconds == estimate(small, 10, encoder="floor").seconds
+
+
+def test_settings_read_a_preset_a_count_or_a_cell():
+    assert EncodeSettings.choose() == EncodeSettings(cell=QUALITY[DEFAULT_QUALITY]["cell"])
+    assert EncodeSettings.choose("high") == EncodeSettings(cell=QUALITY["high"]["cell"], refine=QUALITY["high"]["refine"])
+    assert EncodeSettings.choose("high", refine=0) == EncodeSettings(cell=QUALITY["high"]["cell"])
+    assert EncodeSettings.choose(default="draft") == EncodeSettings(cell=QUALITY["draft"]["cell"])
+    assert EncodeSettings.choose(gaussians=500, cell=6.0, refine=3) == EncodeSettings(gaussians=500, refine=3)
+    assert EncodeSettings.choose(cell=5.0) == EncodeSettings(cell=5.0)
+    with pytest.raises(HyperGSError, match="unknown quality"):
+        EncodeSettings.choose("ultra")
+
+
+def test_settings_without_torch_skip_refining_and_say_so(monkeypatch):
+    from hypergs_blender import optional
+    monkeypatch.setattr(optional, "torch_available", lambda: False)
+    chosen = EncodeSettings.choose("high").runnable()
+    assert chosen.refine == 0 and "refining needs PyTorch" in chosen.note and "30 steps" in chosen.note
+    assert EncodeSettings.choose("draft").runnable() == EncodeSettings.choose("draft")
+
+
+def test_settings_layout_uses_the_encoders_granule():
+    class Coarse(FloorEncoder):
+        granule = 4
+    chosen = EncodeSettings(cell=6)
+    assert chosen.layout(1000, 600, Coarse()) == plan_layout(1000, 600, 4, cell=6, granule=4)
+    assert chosen.layout(1000, 600, Coarse()).cols % 4 == 0
+    assert chosen.layout(1000, 600, FloorEncoder()) == plan_layout(1000, 600, 4, cell=6)
+
+
+def test_plan_measures_the_psnr_of_spread_frames(moving_video):
+    plan = EncodePlan(moving_video, FloorEncoder(), EncodeSettings(cell=6))
+    video = plan.video(chunk_frames=5, psnr_frames=3)
+    frames, _, _ = read_frames(moving_video)
+    rendered = render_frames(video, 64, 48, [0, 6, 11])  # frames 0, 5.5 -> 6, 11 of 12
+    expected = psnr(rendered, frames[[0, 6, 11]] / np.float32(255))
+    np.testing.assert_allclose(plan.psnr_values, expected, rtol=1e-6)
+    assert plan.psnr == pytest.approx(float(np.mean(expected)))
+
+
+@pytest.mark.parametrize("argv,expected", [
+    ([], EncodeSettings(cell=6.0)), (["--quality", "draft"], EncodeSettings(cell=8.0)),
+    (["--quality", "high"], EncodeSettings(cell=4.0, refine=30)),
+    (["--quality", "high", "--refine", "2"], EncodeSettings(cell=4.0, refine=2)),
+    (["--gaussians", "300"], EncodeSettings(gaussians=300)), (["--cell", "5", "--refine", "1"], EncodeSettings(cell=5.0, refine=1)),
+    (["--gaussians", "300", "--grid", "3x2"], EncodeSettings(gaussians=300, grid=(3, 2))),
+    (["--quality", "draft", "--grid", "2"], EncodeSettings(cell=8.0, grid=(2, 2)))])
+def test_encode_command_reads_quality_count_or_cell(argv, expected, tmp_path, moving_video):
+    from hypergs_blender.commands import cli, options
+    args = cli.build_parser().parse_args(["encode", str(moving_video), "-o", str(tmp_path / "c.hgs"), *argv])
+    assert options.settings_from_args(args) == expected
+
+
+def test_quality_excludes_a_count_or_a_cell(moving_video, tmp_path, capsys):
+    for other in (["--cell", "6"], ["--gaussians", "100"]):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["encode", str(moving_video), "-o", str(tmp_path / "c.hgs"), "--quality", "draft", *other])
+        assert exit_info.value.code == 2 and "not allowed with argument --quality" in capsys.readouterr().err
+    main(["encode", str(moving_video), "-o", str(tmp_path / "draft.npz"), "--encoder", "floor", "--quality", "draft"])
+    layout = plan_layout(64, 48, 4, cell=QUALITY["draft"]["cell"])
+    assert load_clip(tmp_path / "draft.npz").grid == (layout.cols, layout.rows)

@@ -1,4 +1,4 @@
-"""Fuzzing the .hgs reader: truncated files, flipped bits, overwritten bytes, huge declared sizes (with the
+"""Fuzzing the .hgs reader (both codecs: a quantized file and a float16 frame cache): truncated files, flipped bits, overwritten bytes, huge declared sizes (with the
 checksums re-signed so the values get past them), wrong versions, garbage. Every input must either
 read as a valid clip or raise HgsError (LimitError past the limits), within bounded memory and time
 (fuzzing.py): never another exception, a crash or a hang.
@@ -27,24 +27,17 @@ from hypothesis import strategies as st
 if __name__ == "__main__":  # run as a script from anywhere: the package is in the checkout
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fuzzing import Stats, fuzz_limits, outcome  # noqa: E402
+from fuzzing import HEADER_FIELDS, Stats, fuzz_limits, outcome, set_header_field  # noqa: E402
 from hypergs_blender.errors import HyperGSError, LimitError
 from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.hgs import _CRC, _ENTRY, _HEADER, _INDEX, HgsError, HgsReader, save_hgs
 
-# (name, struct format) of the fixed header fields, in order
-HEADER_FIELDS = [("magic", "8s"), ("version", "H"), ("flags", "H"), ("canvas_w", "I"), ("canvas_h", "I"),
-                 ("fps", "d"), ("n", "I"), ("grid_c", "H"), ("grid_r", "H"), ("frames", "I"), ("group", "H"),
-                 ("reserved", "H")] + [(f"bits{i}", "B") for i in range(8)] + \
-                [(f"transform{i}", "B") for i in range(8)] + [(f"range{i}", "d") for i in range(16)] + \
-                [("index_offset", "Q"), ("json_len", "I")]
-assert struct.calcsize("<" + "".join(f for _, f in HEADER_FIELDS)) == _HEADER.size
 INTERESTING_INTS = [0, 1, 2, 3, 7, 8, 15, 16, 17, 63, 64, 65, 255, 256, 4096, 65535, 65536, 1 << 20, (1 << 20) + 1,
                     (1 << 31) - 1, 1 << 31, (1 << 32) - 1, 1 << 32, (1 << 63) - 1, (1 << 64) - 1]
 INTERESTING_FLOATS = [0.0, -0.0, 1.0, -1.0, 1e-300, 1e300, -1e300, math.inf, -math.inf, math.nan, 88.0, 70.0, 1e30]
 
 
-def base_file() -> bytes:
+def base_file(codec: str = "quantized") -> bytes:
     rng = np.random.default_rng(0)
     t, n = 7, 10
     p = np.empty((t, n, 8), np.float32)
@@ -55,11 +48,12 @@ def base_file() -> bytes:
     p[..., 3] = 2.0  # one constant parameter: a stream that costs no data
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "base.hgs"
-        save_hgs(GaussianVideo(p, 48, 32, 24.0, (1, 1), {"k": "v"}), path, bits=6, group_size=3)
+        save_hgs(GaussianVideo(p, 48, 32, 24.0, (1, 1), {"k": "v"}), path, bits=6, group_size=3, codec=codec)
         return path.read_bytes()
 
 
-BASE = base_file()
+BASES = {codec: base_file(codec) for codec in ("quantized", "float16")}
+BASE = BASES["quantized"]
 
 
 def layout(data: bytes) -> dict:
@@ -73,42 +67,32 @@ def layout(data: bytes) -> dict:
     return {"header_end": header_end, "chunks": chunks, "index": index_offset}
 
 
-LAYOUT = layout(BASE)
+LAYOUTS = {codec: layout(data) for codec, data in BASES.items()}
+LAYOUT = LAYOUTS["quantized"]
 
 
 # ---- mutations (shared by hypothesis and the stand-alone runs) ----------------------------------------
 
-def resign_header(data: bytearray) -> None:
-    end = LAYOUT["header_end"] - _CRC.size
+def resign_header(data: bytearray, lay: dict = LAYOUT) -> None:
+    end = lay["header_end"] - _CRC.size
     data[end:end + 4] = _CRC.pack(zlib.crc32(bytes(data[:end])))
 
 
-def resign_chunk(data: bytearray, chunk: int) -> None:
-    off, length = LAYOUT["chunks"][chunk]
+def resign_chunk(data: bytearray, chunk: int, lay: dict = LAYOUT) -> None:
+    off, length = lay["chunks"][chunk]
     end = off + length - _CRC.size
     data[end:end + 4] = _CRC.pack(zlib.crc32(bytes(data[off:end])))
 
 
-def resign_index(data: bytearray) -> None:
+def resign_index(data: bytearray, lay: dict = LAYOUT) -> None:
     end = len(data) - _CRC.size
-    data[end:] = _CRC.pack(zlib.crc32(bytes(data[LAYOUT["index"]:end])))
+    data[end:] = _CRC.pack(zlib.crc32(bytes(data[lay["index"]:end])))
 
 
-def set_header_field(data: bytearray, name: str, value) -> None:
-    offset = 0
-    for field, fmt in HEADER_FIELDS:
-        if field == name:
-            try:
-                struct.pack_into("<" + fmt, data, offset, value)
-            except struct.error:
-                struct.pack_into("<" + fmt, data, offset, int(value) % (1 << (8 * struct.calcsize(fmt))))
-            return
-        offset += struct.calcsize("<" + fmt)
-    raise KeyError(name)
-
-
-def mutate(kind: str, rnd: random.Random, data: bytes = BASE) -> bytes:
-    """One mutation of a valid file, its parameters drawn from `rnd`."""
+def mutate(kind: str, rnd: random.Random, data: bytes = BASE, codec: str = "quantized") -> bytes:
+    """One mutation of a valid file of `codec` (BASES[codec], or `data` of its layout), its parameters
+    drawn from `rnd`."""
+    lay = LAYOUTS[codec]
     out = bytearray(data)
     if kind == "truncate":
         return bytes(out[:rnd.randrange(len(out))])
@@ -125,22 +109,22 @@ def mutate(kind: str, rnd: random.Random, data: bytes = BASE) -> bytes:
         name, fmt = rnd.choice(HEADER_FIELDS[1:])
         value = rnd.choice(INTERESTING_FLOATS) if fmt == "d" else rnd.choice(INTERESTING_INTS)
         set_header_field(out, name, value)
-        resign_header(out)
+        resign_header(out, lay)
         return bytes(out)
     if kind == "chunk":  # damaged payload or chunk header, checksum re-signed
-        chunk = rnd.randrange(len(LAYOUT["chunks"]))
-        off, length = LAYOUT["chunks"][chunk]
+        chunk = rnd.randrange(len(lay["chunks"]))
+        off, length = lay["chunks"][chunk]
         for _ in range(rnd.randint(1, 4)):
             pos = off + rnd.randrange(length - _CRC.size)
             out[pos] = rnd.choice([0, 1, 2, 3, 0x7F, 0x80, 0xFF, rnd.randrange(256)])
-        resign_chunk(out, chunk)
+        resign_chunk(out, chunk, lay)
         return bytes(out)
     if kind == "index":  # damaged index entries, checksum re-signed
-        start = LAYOUT["index"]
+        start = lay["index"]
         pos = start + rnd.randrange(len(out) - start - _CRC.size)
         out[pos:pos + 4] = rnd.choice([b"\xff\xff\xff\xff", b"\x00\x00\x00\x00", rnd.randbytes(4), b"\x01\x00\x00\x00"])
         out = out[:len(data)]
-        resign_index(out)
+        resign_index(out, lay)
         return bytes(out)
     if kind == "splice":  # bytes inserted or removed somewhere
         pos = rnd.randrange(len(out))
@@ -177,15 +161,17 @@ def read_outcome(data: bytes, path: Path, stats: Stats | None = None, kind: str 
 
 # ---- the test suite -------------------------------------------------------------------------------
 
-def test_base_file_reads(tmp_path):
-    assert read_outcome(BASE, tmp_path / "f.hgs") == "ok"
-    assert len(LAYOUT["chunks"]) == 3
+@pytest.mark.parametrize("codec", BASES)
+def test_base_file_reads(tmp_path, codec):
+    assert read_outcome(BASES[codec], tmp_path / "f.hgs") == "ok"
+    assert len(LAYOUTS[codec]["chunks"]) == 3
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@pytest.mark.parametrize("codec", BASES)
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kind=st.sampled_from(KINDS), seed=st.integers(0, 2**32 - 1))
-def test_fuzzed_files_read_or_fail_cleanly(tmp_path, kind, seed):
-    read_outcome(mutate(kind, random.Random(seed)), tmp_path / "f.hgs")
+def test_fuzzed_files_read_or_fail_cleanly(tmp_path, codec, kind, seed):
+    read_outcome(mutate(kind, random.Random(seed), BASES[codec], codec), tmp_path / "f.hgs")
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -199,7 +185,7 @@ def test_every_truncation_is_an_error(tmp_path):
         assert read_outcome(BASE[:length], tmp_path / "f.hgs") == "error"
 
 
-@pytest.mark.parametrize("version", [0, 2, 65535])
+@pytest.mark.parametrize("version", [0, 3, 65535])
 def test_wrong_version_says_so(tmp_path, version):
     data = bytearray(BASE)
     set_header_field(data, "version", version)
@@ -219,9 +205,22 @@ def test_huge_or_invalid_declared_sizes_are_refused_quickly(tmp_path, field, val
     assert read_outcome(bytes(data), tmp_path / "f.hgs") in ("error", "limit")
 
 
-def test_each_chunk_checksum_is_checked(tmp_path):
-    for off, length in LAYOUT["chunks"]:
-        data = bytearray(BASE)
+@pytest.mark.parametrize("codec,field,value,expect", [("quantized", "version", 2, "codec 0 in a version 2 file"),
+                                                       ("float16", "codec", 0, "codec 0 in a version 2 file"),
+                                                       ("float16", "codec", 7, "codec 7 in a version 2 file")])
+def test_a_codec_and_version_that_do_not_match_are_refused(tmp_path, codec, field, value, expect):
+    data = bytearray(BASES[codec])
+    set_header_field(data, field, value)
+    resign_header(data, LAYOUTS[codec])
+    (tmp_path / "f.hgs").write_bytes(bytes(data))
+    with pytest.raises(HgsError, match=expect):
+        HgsReader(tmp_path / "f.hgs")
+
+
+@pytest.mark.parametrize("codec", BASES)
+def test_each_chunk_checksum_is_checked(tmp_path, codec):
+    for off, length in LAYOUTS[codec]["chunks"]:
+        data = bytearray(BASES[codec])
         data[off + length // 2] ^= 0x10
         with pytest.raises(HgsError, match="checksum"):
             _read_all(data, tmp_path)
@@ -251,13 +250,14 @@ def run_random(seconds: float, seed: int, max_inputs: int | None = None) -> dict
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "f.hgs"
         while time.time() - started < seconds and (max_inputs is None or sum(stats.outcomes.values()) < max_inputs):
+            codec = rnd.choice(list(BASES))
             if rnd.random() < 0.05:
                 kind, data = "bytes", rnd.randbytes(rnd.randint(0, 300))
             else:
                 kind = rnd.choice(KINDS)
-                data = mutate(kind, rnd)
+                data = mutate(kind, rnd, BASES[codec], codec)
                 if rnd.random() < 0.2:  # stack a second mutation
-                    data = mutate(rnd.choice(KINDS), rnd, data) if len(data) == len(BASE) else data
+                    data = mutate(rnd.choice(KINDS), rnd, data, codec) if len(data) == len(BASES[codec]) else data
             try:
                 read_outcome(data, path, stats, kind)
             except Exception:
@@ -278,10 +278,11 @@ def run_atheris(argv) -> None:
     def one_input(raw: bytes) -> None:
         fdp = atheris.FuzzedDataProvider(raw)
         choice = fdp.ConsumeIntInRange(0, len(KINDS))
+        codec = list(BASES)[fdp.ConsumeIntInRange(0, len(BASES) - 1)]
         if choice == len(KINDS):
             data = fdp.ConsumeBytes(fdp.remaining_bytes())
         else:
-            data = mutate(KINDS[choice], random.Random(fdp.ConsumeInt(8)))
+            data = mutate(KINDS[choice], random.Random(fdp.ConsumeInt(8)), BASES[codec], codec)
         stats["inputs"] += 1
         read_outcome(data, path)
 

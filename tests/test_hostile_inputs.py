@@ -92,7 +92,7 @@ def video(tmp_path):
 
 def resigned_hgs(path, **fields) -> Path:
     """A .hgs file with header fields changed and its header checksum re-signed, so the values are used."""
-    from test_hgs_fuzz import set_header_field
+    from fuzzing import set_header_field
     data = bytearray(path.read_bytes())
     for name, value in fields.items():
         set_header_field(data, name, value)

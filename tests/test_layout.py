@@ -108,3 +108,48 @@ def test_no_import_cycles():
     # A package's __init__ importing its own modules is not a cycle of the design.
     cycles = [c for c in cycles if not any(a and b.startswith(a + ".") for a, b in zip(c, c[1:]))]
     assert not cycles, "\n".join(" -> ".join(c) for c in cycles)
+
+
+# Modules that exist only inside Blender (bpy and the modules Blender's Python adds).
+BLENDER_MODULES = {"bpy", "bpy_extras", "bpy_types", "bmesh", "mathutils", "gpu", "gpu_extras", "bl_ui", "bl_operators",
+                   "bl_ext", "bl_pkg", "addon_utils", "aud", "blf", "bgl", "idprop", "imbuf", "freestyle",
+                   "rna_prop_ui", "_bpy"}
+
+
+def top_level_imports(path: Path) -> set[str]:
+    """The top-level names of every absolute import in a file (those inside functions too), and the
+    module names given to importlib.import_module / __import__ as literal strings."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.add(node.module.split(".")[0])
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], (ast.Constant, ast.JoinedStr)):
+            name = ast.unparse(node.func)
+            if name in ("importlib.import_module", "import_module", "__import__"):
+                first = node.args[0]
+                text = first.value if isinstance(first, ast.Constant) else "".join(
+                    v.value for v in first.values if isinstance(v, ast.Constant))
+                found.add(str(text).split(".")[0] or "<dynamic>")
+    return found
+
+
+def test_the_core_never_imports_blender():
+    """hypergs_blender/ runs without Blender (the command line, training, benchmarks, a child process
+    reading a USD file): no module of it imports bpy or another of Blender's modules, or reaches the
+    installed extension (bl_ext) through importlib. Headless Blender lives in tools/ and tests/."""
+    wrong = {str(path.relative_to(ROOT)): sorted(top_level_imports(path) & BLENDER_MODULES)
+             for path in sorted((ROOT / "hypergs_blender").rglob("*.py"))}
+    wrong = {path: names for path, names in wrong.items() if names}
+    assert not wrong, wrong
+    # The check sees imports inside functions and through importlib (tools/ may drive Blender):
+    assert {"bpy", "bl_ext"} <= top_level_imports(ROOT / "tools" / "blender_headless.py")
+
+
+def test_tests_share_helpers_not_test_files():
+    """A test file imports helpers (conftest.py, blender_session.py, tools/), never another test file."""
+    wrong = {path.name: sorted(name for name in top_level_imports(path) if name.startswith("test_"))
+             for path in sorted((ROOT / "tests").glob("*.py"))}
+    wrong = {path: names for path, names in wrong.items() if names}
+    assert not wrong, wrong

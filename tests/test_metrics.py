@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from hypergs_blender import metrics
-from hypergs_blender.encode import FloorEncoder
+from hypergs_blender.encode import EncodeSettings, FloorEncoder
 from hypergs_blender.evaluate import evaluate_frames
 from hypergs_blender.model import ConvConfig, ConvGS
 from hypergs_blender.network import torch_encoder
@@ -56,7 +56,7 @@ def test_floor_has_no_lattice_in_flat_regions():
     code value of the source's), and the frame's edges dark by the missing neighbours only."""
     frames = np.full((2, 96, 128, 3), 120, np.uint8)
     frames[:, 30:60, 40:80] = (230, 200, 60)
-    result = evaluate_frames(frames, FloorEncoder(), cell=6)
+    result = evaluate_frames(frames, FloorEncoder(), EncodeSettings(cell=6))
     ripple = result["flat_ripple"]
     assert ripple["blocks"] > 10 and ripple["render_std"] - ripple["source_std"] < 0.5
     assert result["seam_ratio"] is None and result["tiles"] == [1, 1]
@@ -72,5 +72,5 @@ def test_tiled_network_has_no_seams():
     encoder = torch_encoder(model)
     encoder.tile = 2 * model.cfg.reach + 32
     frames = (smooth_frames(2, 120, 320) * 255).astype(np.uint8)
-    result = evaluate_frames(frames, encoder, cell=4)
+    result = evaluate_frames(frames, encoder, EncodeSettings(cell=4))
     assert result["tiles"][0] > 2 and result["seam_ratio"] == pytest.approx(1.0, abs=0.2)

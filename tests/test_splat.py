@@ -2,31 +2,12 @@
 the numpy rasterizer in test_blender_splat.py)."""
 import numpy as np
 import pytest
+from conftest import hard_params
 
 from hypergs_blender.gaussians import render_inputs
 from hypergs_blender.raster import box_radii
 from hypergs_blender.render import render_params
 from hypergs_blender.splat import CHUNK, GAUSSIANS_PER_ROW, ROW_WIDTH, TEXELS, splat_rows, texture_rows
-
-
-def hard_params(n, seed=0, invalid=True):
-    """Anisotropic Gaussians on a canvas: some off the image, needles (aspect 300), tiny and huge ones,
-    negative colours, and (`invalid`) two invalid ones (zero or NaN scale)."""
-    rng = np.random.default_rng(seed)
-    p = np.empty((n, 8), np.float32)
-    p[:, 0:2] = rng.uniform(-1.4, 1.4, (n, 2))
-    p[:, 2:4] = np.exp(rng.uniform(np.log(0.05), np.log(12), (n, 2)))
-    p[:, 4] = rng.uniform(0, 2 * np.pi, n)
-    p[:, 5:8] = rng.uniform(-0.1, 0.4, (n, 3))
-    p[:8, 2:4] = [[15, 0.05]] * 8  # needles
-    p[8, 2:4] = [400, 300]  # larger than the image, centre off it
-    p[8, 0:2] = [1.5, -1.2]
-    p[9, 0:2] = [9.0, 0.0]  # far off
-    if invalid:
-        p[10, 2] = 0.0  # l11 = 0
-        p[11, 3] = np.nan
-    return p
-
 
 CLIPS = [(hard_params(400, 1), 96, 64), (hard_params(300, 2), 50, 80)]
 W, H = 123, 77

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from hypergs_blender.commands.cli import main
-from hypergs_blender.encode import EncodePlan, TileLayout, encode_video, frames_layout, plan_tile_layout
+from hypergs_blender.encode import (EncodePlan, EncodeSettings, TileLayout, encode_video, frames_layout,
+                                    plan_tile_layout)
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.gaussians import grid_anchors, lattice_anchors
 from hypergs_blender.model import HyperGS, TransformerConfig
@@ -165,10 +166,11 @@ def test_loaded_by_card_on_both_backends(exported, moving_video):
     torch_, onnx = resolve_encoder(weights=exported, backend="torch"), resolve_encoder(weights=exported, backend="onnx")
     assert (torch_.name, onnx.name) == ("transformer-torch", "transformer-onnx")
     # the encode loop: clips of clip_frames (7 frames: the last clip padded), the lattice as the clip's grid
-    videos = [encode_video(moving_video, e, gaussians=16, grid=(2, 1), stop=7, chunk_frames=3) for e in (torch_, onnx)]
+    videos = [encode_video(moving_video, e, EncodeSettings(gaussians=16, grid=(2, 1)), stop=7,
+                           chunk_frames=3) for e in (torch_, onnx)]
     assert videos[0].params.shape == (7, 2 * 16, 8) and videos[0].grid == (8, 4)
     np.testing.assert_allclose(videos[0].params, videos[1].params, atol=1e-4)
-    assert EncodePlan(moving_video, torch_, gaussians=16).layout.tiles == (2, 2)  # 64 x 48 in tiles of about 32
+    assert EncodePlan(moving_video, torch_, EncodeSettings(gaussians=16)).layout.tiles == (2, 2)  # 64 x 48 in tiles of about 32
 
 
 def test_a_folder_of_several_models_needs_a_name(exported, tmp_path):

@@ -101,3 +101,57 @@ def test_usd_cli_round_trip(tmp_path, capsys, monkeypatch):
     a, b = load_hgs(tmp_path / "c.hgs"), load_hgs(tmp_path / "back.hgs")
     # .hgs -> USD -> .hgs: the second quantization lands on the same levels, up to float rounding
     np.testing.assert_allclose(b.params[..., 5:8], a.params[..., 5:8], atol=1e-5)
+
+
+@pytest.mark.parametrize("suffix", [".usd", ".usda"])
+def test_streaming_writer_saves_as_it_goes_and_reads_back_exactly(tmp_path, suffix, monkeypatch):
+    from hypergs_blender.io import usd
+    monkeypatch.setattr(usd, "SAVE_EVERY", 8)  # a crate file is saved and its layer reloaded 8 times
+    video = make_video(t=70, n=20, seed=1)
+    path = tmp_path / f"clip{suffix}"
+    with usd.UsdWriter(path, 320, 180, 20, 29.97, (2, 3), video.source, start_frame=5) as writer:
+        for start in range(0, 70, 9):
+            writer.write(video.params[start:start + 9])
+        assert not path.exists()  # only a complete file appears
+    out = import_usd(path)
+    np.testing.assert_allclose(out.params[..., 0:2], video.params[..., 0:2], rtol=0, atol=1e-6)
+    assert np.array_equal(out.params[..., 2:8], video.params[..., 2:8]) and out.source == video.source
+
+
+def test_a_failed_usd_export_leaves_no_file(tmp_path):
+    from hypergs_blender.io.usd import UsdWriter
+    (tmp_path / "c.usd").write_bytes(b"the file before")
+    with pytest.raises(RuntimeError):
+        with UsdWriter(tmp_path / "c.usd", 32, 32, 20) as writer:
+            writer.write(make_video(t=3, n=20).params)
+            raise RuntimeError("cancelled")
+    with pytest.raises(UsdError, match="expected frames"):
+        with UsdWriter(tmp_path / "c.usd", 32, 32, 20) as writer:
+            writer.write(np.zeros((1, 21, 8), np.float32))
+    with pytest.raises(UsdError, match="empty clip"):
+        with UsdWriter(tmp_path / "c.usd", 32, 32, 20):
+            pass
+    assert [p.name for p in tmp_path.iterdir()] == ["c.usd"] and (tmp_path / "c.usd").read_bytes() == b"the file before"
+
+
+def test_crate_files_are_read_in_a_child_and_its_errors_come_back(tmp_path, monkeypatch):
+    """A binary file (.usdc, or .usd holding a crate) is read in a child process: what it reads and the
+    errors it raises (their type and one-line message) come back as from a read in this process."""
+    from hypergs_blender.errors import LimitError
+    from hypergs_blender.io import usd
+
+    video = make_video(t=3, n=20)
+    export_usd(video, tmp_path / "c.usd")  # a crate, whatever the suffix
+    export_usd(video, tmp_path / "c.usda")
+    children = []
+    read_in_child = usd._read_in_child
+    monkeypatch.setattr(usd, "_read_in_child", lambda *a: children.append(a[0].name) or read_in_child(*a))
+    np.testing.assert_array_equal(import_usd(tmp_path / "c.usd").params, import_usd(tmp_path / "c.usda").params)
+    assert children == ["c.usd"]  # the text file is read here
+    monkeypatch.setenv("HYPERGS_LIMIT_FRAMES", "2")
+    with pytest.raises(LimitError, match="HYPERGS_LIMIT_FRAMES") as error:
+        import_usd(tmp_path / "c.usd")
+    assert "c.usd" in str(error.value) and children == ["c.usd", "c.usd"]
+    monkeypatch.delenv("HYPERGS_LIMIT_FRAMES")
+    with pytest.raises(UsdError, match="no UsdGeomPoints prim at /Nothing"):
+        import_usd(tmp_path / "c.usd", prim_path="/Nothing")

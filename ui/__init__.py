@@ -6,13 +6,15 @@ import textwrap
 
 import bpy
 
-from ..com import linked
+from ..com import frames, linked
 from ..com.mesh import linked_file
-from ..ops.operators import (HYPERGS_OT_convert_strip, HYPERGS_OT_edit_frame, HYPERGS_OT_embed_clip,
-                             HYPERGS_OT_export_clip, HYPERGS_OT_import_clip, HYPERGS_OT_import_video,
-                             HYPERGS_OT_reencode)
 from ..ops import preferences, quality
-from ..ops.operators import reencode_source
+from ..ops.clip_files import HYPERGS_OT_embed_clip, HYPERGS_OT_export_clip, HYPERGS_OT_import_clip
+from ..ops.context import active_clip
+from ..ops.edit_frame import HYPERGS_OT_edit_frame
+from ..ops.encode import HYPERGS_OT_convert_strip, HYPERGS_OT_import_video, HYPERGS_OT_reencode
+from ..ops.frame_cache import HYPERGS_OT_pack_cache, HYPERGS_OT_unpack_cache
+from ..ops.sources import reencode_source
 
 
 class HYPERGS_PT_clip(bpy.types.Panel):
@@ -23,19 +25,24 @@ class HYPERGS_PT_clip(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "MESH" and obj.hypergs.is_clip
+        return active_clip(context) is not None
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        obj = context.object
+        obj = active_clip(context)
         s = obj.hypergs
         col = layout.column(align=True)
         col.label(text=f"Source: {os.path.basename(s.source) or '-'}", icon="FILE_MOVIE")
         if s.linked:
             self.draw_linked(obj, layout.box())
+        elif frames.is_cached_clip(obj):
+            self.draw_cache(obj, layout.box())
+        else:
+            box = layout.box()
+            box.label(text="Every frame is in this object's mesh (an earlier version's clip)", icon="MESH_DATA")
+            box.operator(HYPERGS_OT_embed_clip.bl_idname, icon="FILE_CACHE")
         info = layout.column(align=True)
         cell = (s.canvas_width * s.canvas_height / s.gaussians_per_frame) ** 0.5 if s.gaussians_per_frame else 0
         for label, value in (("Frames", f"{s.num_frames}  ({s.canvas_width} x {s.canvas_height}, {s.fps:.3g} fps)"),
@@ -60,20 +67,45 @@ class HYPERGS_PT_clip(bpy.types.Panel):
         box.operator(HYPERGS_OT_reencode.bl_idname, icon="FILE_REFRESH")
 
     @staticmethod
+    def draw_cache(obj, box):
+        """Where the clip's frames are (its frame cache: a file, or packed), what is wrong with it, and
+        the frames edited in Blender."""
+        s = obj.hypergs
+        image = s.cache
+        box.label(text="Frame Cache", icon="FILE_CACHE")
+        row = box.row(align=True)
+        if image.packed_file is not None:
+            row.label(text=f"Packed in the .blend ({image.packed_file.size / 1e6:.1f} MB)", icon="PACKAGE")
+            row.operator(HYPERGS_OT_unpack_cache.bl_idname, icon="UGLYPACKAGE")
+        else:
+            row.prop(image, "filepath", text="")
+            row.operator(HYPERGS_OT_pack_cache.bl_idname, text="", icon="PACKAGE")
+        _draw_problem(box, frames.cache_problem(obj), "The clip shows nothing until the cache is found")
+        if s.overrides:
+            count = len(s.overrides)
+            box.label(text=f"{count} frame{'s' if count > 1 else ''} edited in Blender (kept in the .blend)",
+                      icon="EDITMODE_HLT")
+
+    @staticmethod
     def draw_linked(obj, box):
         """The linked file: its path (editable), and what is wrong with it, if anything."""
         box.label(text="Linked: Gaussians are read from this file at render time", icon="LINKED")
         box.prop(obj.hypergs, "linked_path")
-        problem = linked.problem(linked_file(obj))
-        if problem:
-            col = box.column(align=True)
-            col.alert = True
-            lines = textwrap.wrap(problem, 60) or [problem]
-            col.label(text=lines[0], icon="ERROR")
-            for line in lines[1:4]:
-                col.label(text=line, icon="BLANK1")
-            col.label(text="The clip renders nothing until the file is fixed", icon="BLANK1")
+        _draw_problem(box, linked.problem(linked_file(obj)), "The clip renders nothing until the file is fixed")
         box.operator(HYPERGS_OT_embed_clip.bl_idname, icon="IMPORT")
+
+
+def _draw_problem(layout, problem: str | None, consequence: str) -> None:
+    """A file's problem (if any) in red, wrapped, and what it means for the clip."""
+    if not problem:
+        return
+    col = layout.column(align=True)
+    col.alert = True
+    lines = textwrap.wrap(problem, 60) or [problem]
+    col.label(text=lines[0], icon="ERROR")
+    for line in lines[1:4]:
+        col.label(text=line, icon="BLANK1")
+    col.label(text=consequence, icon="BLANK1")
 
 
 class HYPERGS_PT_render(bpy.types.Panel):

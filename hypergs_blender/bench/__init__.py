@@ -1,2 +1,3 @@
 """Benchmarks (`hypergs bench ...`): each module measures one thing and returns a report dict; common.py
-holds what they share. blender.py drives Blender headless (extension build, sessions, the main job)."""
+holds what they share. No Blender here: the benchmark that drives Blender headless is tools/bench_splat.py
+(`hypergs bench splat` runs it)."""

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import EncodePlan, encode_frames, encode_video, frames_layout
+from ..encode import EncodePlan, EncodeSettings, encode_frames, encode_video, frames_layout
 from ..evaluate import warm_up
 from ..errors import HyperGSError
 from ..io.clips import save_clip
@@ -125,13 +125,13 @@ def stream_encode(path, out_path, encoder, gaussians: int | None = None, cell: f
     into an HgsWriter with the default quantizer ranges (values outside are clipped and counted).
     on_chunk(frames_done) after each chunk. hold_frames keeps every decoded frame (a control that must
     grow memory). Seconds: decoding + encoding (+ refine), and writing."""
-    plan = EncodePlan(path, encoder, gaussians, cell, size)
+    plan = EncodePlan(path, encoder, EncodeSettings(gaussians, cell, refine), size)
     w, h = plan.width, plan.height
     held, seconds = [], {"decode_encode": 0.0, "write": 0.0}
     with HgsWriter(out_path, w, h, plan.layout.count, Quantizer.default(w, h, bits), plan.fps, plan.grid,
                    {"path": str(path)}) as writer:
         started = time.perf_counter()
-        for frames, params in plan.chunks(chunk_frames=chunk_frames, refine=refine):
+        for frames, params in plan.chunks(chunk_frames=chunk_frames):
             seconds["decode_encode"] += time.perf_counter() - started
             if hold_frames:
                 held.append(frames)
@@ -160,8 +160,9 @@ def _scale_worker(spec: dict) -> dict:
             trace.append([done, round(_rss_mb() or 0.0, 1), round(_peak_rss_mb(), 1)])
             return True
         started = time.perf_counter()
-        video = encode_video(spec["video"], encoder, spec.get("gaussians"), spec.get("cell"), spec.get("size"),
-                             progress=progress, chunk_frames=spec.get("chunk_frames", 16), refine=spec.get("refine", 0))
+        settings = EncodeSettings(spec.get("gaussians"), spec.get("cell"), spec.get("refine", 0))
+        video = encode_video(spec["video"], encoder, settings, spec.get("size"), progress=progress,
+                             chunk_frames=spec.get("chunk_frames", 16))
         save_clip(video, spec["output"], bits=spec.get("bits", 8))
         seconds = time.perf_counter() - started
         return {"encoder": encoder.name, "frames": video.num_frames, "wall_seconds": seconds,

@@ -210,10 +210,16 @@ def _splat(parser):
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
                         help="also write the JSON report here")
 
-    def run(args) -> dict:
-        from ..bench.splat import bench_splat
-        w, h = args.size
-        return write_report(bench_splat(w, h, args.gaussians, args.repeats), args.output)
+    def run(args) -> dict:  # Blender runs in tools/bench_splat.py's sessions
+        import tempfile
+        from pathlib import Path
+
+        from .checkout import run_tool
+        with tempfile.TemporaryDirectory(prefix="hypergs-bench-splat-") as tmp:
+            report = Path(tmp) / "report.json"
+            run_tool("bench_splat.py", "--size", "x".join(map(str, args.size)), "--gaussians", args.gaussians,
+                     "--repeats", args.repeats, "--report", report)
+            return write_report(json.loads(report.read_text()), args.output)
     return run
 
 
@@ -265,7 +271,7 @@ def _designs(parser):
 
 
 def _plots(parser):
-    from ..bench.blender import ROOT
+    from .checkout import ROOT
     parser.add_argument("--bench", dest="reports", default=str(ROOT / "docs" / "bench"), type=options.input_folder,
                         help="folder of the JSON reports")  # (dest: `bench` names the bench subcommand)
     parser.add_argument("--out", default=str(ROOT / "docs"), type=options.output_folder, help="folder for the PNGs")

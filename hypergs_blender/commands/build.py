@@ -1,11 +1,12 @@
-"""`hypergs build-extension`: the Blender extension zip(s), built and validated with Blender's tool."""
+"""`hypergs build-extension`: the Blender extension zip(s), built and validated with Blender's tool
+(tools/build_extension.py, run from the source checkout)."""
 from __future__ import annotations
 
 from . import options
+from .checkout import ROOT, run_tool
 
 
 def add_commands(subparsers) -> None:
-    from ..bench.blender import ROOT
     p = subparsers.add_parser("build-extension", help="build and validate the Blender extension zip(s)")
     p.add_argument("--output-dir", default=str(ROOT / "dist"), type=options.output_folder)
     p.add_argument("--split-platforms", action="store_true", help="one zip per platform")
@@ -13,6 +14,4 @@ def add_commands(subparsers) -> None:
 
 
 def _build_command(args) -> None:
-    from ..bench.blender import build
-    for path in build(args.output_dir, args.split_platforms):
-        print(path)
+    run_tool("build_extension.py", "--output-dir", args.output_dir, *(["--split-platforms"] if args.split_platforms else []))

@@ -46,10 +46,13 @@ def _format_info(info: dict) -> str:
     lines.append(f"  gaussians    {info['num_gaussians']} per frame")
     lines.append(f"  size         {info['file_bytes']} bytes, {info['bits_per_gaussian']:.2f} bits per Gaussian, "
                  f"{info['bpp_at_canvas']:.4f} bits per canvas pixel")
-    if "bits" in info:
-        lines.append(f"  bits         {' '.join(str(b) for b in info['bits'])} (x y sx sy rot r g b)")
+    if "codec" in info:
+        lines.append(f"  codec        {info['codec']}")
+    if "groups" in info:
         lines.append(f"  groups       {info['groups']} of up to {info['group_size']} frames "
                      f"({info['group_bytes']['min']}..{info['group_bytes']['max']} bytes)")
+    if "bits" in info:
+        lines.append(f"  bits         {' '.join(str(b) for b in info['bits'])} (x y sx sy rot r g b)")
         for name, (lo, hi) in info["ranges"].items():
             lines.append(f"  range {name:<8} [{lo:.6g}, {hi:.6g}]")
     if info.get("verified"):

@@ -5,21 +5,18 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from .. import limits
-from ..encode import QUALITY, EncodePlan
-from ..gaussians import GaussianVideo
+from ..encode import EncodePlan
 from ..io.clips import CLIP_SUFFIXES
 from . import options
-from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
+from .options import add_encoder_arguments, add_settings_arguments, encoder_from_args, settings_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("encode", help="video -> Gaussian video file (.npz, .hgs, .usd)")
     p.add_argument("video", type=options.input_video)
     p.add_argument("-o", "--output", required=True, type=options.OutputFile(CLIP_SUFFIXES))
-    add_density_arguments(p, default_cell=QUALITY["standard"]["cell"])
+    add_settings_arguments(p)
     p.add_argument("--size", type=options.image_side, default=None,
                    help="square canvas (short-side resize + crop); default native")
     p.add_argument("--start", type=options.frame_index, default=0)
@@ -43,7 +40,8 @@ def _encode_command(args) -> None:
     from tqdm import tqdm
     encoder = encoder_from_args(args)
     started = time.perf_counter()
-    plan = EncodePlan(args.video, encoder, **density_from_args(args), size=args.size, start=args.start, stop=args.stop)
+    plan = EncodePlan(args.video, encoder, settings_from_args(args), size=args.size, start=args.start,
+                      stop=args.stop)
     if plan.layout.note:
         print(f"hypergs: note: {plan.layout.note}", file=sys.stderr)
     streamed = Path(args.output).suffix.lower() == ".hgs"
@@ -55,7 +53,6 @@ def _encode_command(args) -> None:
             bar.update(done - bar.n)
             return True
 
-        chunks = (params for _, params in plan.chunks(progress, refine=args.refine))
         if streamed:
             # Streamed: memory stays bounded by the chunk, and the writer only renames its temporary
             # file into place when every frame is in, so an interrupted encode leaves no file behind.
@@ -67,13 +64,11 @@ def _encode_command(args) -> None:
             quantizer = Quantizer.default(plan.width, plan.height, bits)
             with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
                            plan.grid, plan.source) as writer:
-                for params in chunks:
+                for _, params in plan.chunks(progress):
                     writer.write(params)
         else:
             from ..io.clips import save_clip
-            video = GaussianVideo(np.concatenate(list(chunks)), plan.width, plan.height, plan.fps, plan.grid,
-                                  plan.source)
-            save_clip(video, args.output)
+            save_clip(plan.video(progress), args.output)
     print(f"{args.output}: {len(plan.indices)} frames x {plan.layout.count} Gaussians "
           f"({time.perf_counter() - started:.2f} s)")
 

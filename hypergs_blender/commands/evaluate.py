@@ -10,13 +10,13 @@ from ..errors import HyperGSError
 from ..evaluate import evaluate_video, warm_up
 from ..io.frames import probe
 from . import options
-from .options import add_density_arguments, add_encoder_arguments, density_from_args, encoder_from_args
+from .options import add_encoder_arguments, add_settings_arguments, encoder_from_args, settings_from_args
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="quality and speed of encode -> render on videos")
     p.add_argument("videos", nargs="+", type=options.input_video)
-    add_density_arguments(p, default_cell=8.0)
+    add_settings_arguments(p, default="draft")
     frames = p.add_mutually_exclusive_group()
     frames.add_argument("--size", type=options.image_side, default=256,
                         help="short-side resize + centre crop to SIZE x SIZE")
@@ -41,11 +41,11 @@ def run(args) -> None:
         encoder.tile = args.tile
     warm_up(encoder)
     size = None if (args.native or args.full or args.crop) else args.size
+    settings = settings_from_args(args)
     rows = []
     for video in args.videos:
         crop = args.crop or (min(probe(video).width, probe(video).height) if args.native else None)
-        rows.append(evaluate_video(video, encoder, **density_from_args(args), size=size, crop=crop,
-                                   frames=args.frames, refine=args.refine))
+        rows.append(evaluate_video(video, encoder, settings, size=size, crop=crop, frames=args.frames))
     for note in sorted({r["note"] for r in rows if r["note"]}):
         print(f"hypergs: note: {note}", file=sys.stderr)
     keys = ["psnr", "ssim", "ms_ssim", "floor_bilinear_psnr", "gaussians", "edge_bias", "encode_seconds",
@@ -56,7 +56,8 @@ def run(args) -> None:
     ripple = [r["flat_ripple"] for r in rows if r["flat_ripple"]["blocks"]]
     mean["flat_ripple_render_std"] = float(np.mean([f["render_std"] for f in ripple])) if ripple else None
     mean["flat_ripple_source_std"] = float(np.mean([f["source_std"] for f in ripple])) if ripple else None
-    report = dict(encoder=encoder.name, density=density_from_args(args), refine=args.refine,
+    report = dict(encoder=encoder.name, density=dict(gaussians=settings.gaussians, cell=settings.cell, grid=settings.grid),
+                  refine=settings.refine,
                   frames_from=("native" if args.native else "full" if args.full else f"crop {args.crop}" if args.crop
                                else f"size {args.size}"),
                   frames=args.frames, videos=rows, mean=mean)

@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 from .. import limits
+from ..encode import DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
 from ..network import BACKENDS, WEIGHTS_DIR, resolve_encoder
@@ -314,8 +315,6 @@ def add_encoder_arguments(parser) -> None:
                         help="the trained network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     add_model_arguments(parser)
-    parser.add_argument("--refine", type=non_negative_int, default=0,
-                        help="per-frame refinement steps after the prediction")
 
 
 def add_model_arguments(parser) -> None:
@@ -327,33 +326,37 @@ def add_model_arguments(parser) -> None:
                              "folder's only model)")
 
 
-def add_density_arguments(parser, default_cell: float | None = None) -> None:
-    """How many Gaussians: a count per frame (the transformer: per tile), or a cell size (one Gaussian
-    per cell x cell source pixels); and the transformer's patch grid."""
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--gaussians", type=gaussian_count, default=None,
-                       help="Gaussians per frame (about; on a grid of cells); the transformer: per patch-grid tile")
-    group.add_argument("--cell", type=positive_float, default=None,
-                       help=f"source pixels per Gaussian cell side (default {default_cell:g})" if default_cell
-                       else "source pixels per Gaussian cell side")
-    parser.add_argument("--grid", type=patch_grid, default=None,
-                        help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
-                             "at the frame's resolution)")
-    parser.set_defaults(default_cell=default_cell)
-
-
-def density_from_args(args) -> dict:
-    density = dict(cell=args.default_cell) if args.gaussians is None and args.cell is None else dict(
-        gaussians=args.gaussians, cell=args.cell)
-    return dict(density, grid=args.grid)
-
-
 def weights_from_args(args):
     """What resolve_encoder loads for --weights and --model: the folder, or the named model's card in it
     (default folder: the bundled models)."""
     if args.model is None:
         return args.weights
     return Path(args.weights or WEIGHTS_DIR) / f"{args.model}.json"
+
+
+def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
+    """What the encode is asked for (encode.EncodeSettings): a Quality preset, a Gaussian count per
+    frame (the transformer: per tile) or a cell size (one Gaussian per cell x cell source pixels),
+    refine steps, and the transformer's patch grid."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--quality", choices=list(QUALITY), default=None,
+                       help="a preset: " + ", ".join(f"{name} (cells of {p['cell']:g} px"
+                                                      + (f", refined {p['refine']} steps)" if p["refine"] else ")")
+                                                      for name, p in QUALITY.items()) + f"; default {default}")
+    group.add_argument("--gaussians", type=gaussian_count, default=None,
+                       help="Gaussians per frame (about; on a grid of cells); the transformer: per patch-grid tile")
+    group.add_argument("--cell", type=positive_float, default=None, help="source pixels per Gaussian cell side")
+    parser.add_argument("--refine", type=non_negative_int, default=None,
+                        help="per-frame refinement steps after the prediction (default: the preset's, else 0)")
+    parser.add_argument("--grid", type=patch_grid, default=None,
+                        help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
+                             "at the frame's resolution)")
+    parser.set_defaults(default_quality=default)
+
+
+def settings_from_args(args) -> EncodeSettings:
+    return EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine, default=args.default_quality,
+                                 grid=args.grid)
 
 
 def encoder_from_args(args, device=None):

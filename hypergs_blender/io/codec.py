@@ -21,12 +21,15 @@ symbol histogram (stored as 8-bit counts over the used symbol span), and all sym
 through one ANS coder (constriction's `AnsCoder` with `Categorical(perfect=False)` models), in frame
 order, so a reader can decode a group one frame at a time in O(N) memory.
 
-This module is numpy + constriction only (no torch, no bpy).
+The float16 payload (`encode_float16_group`, the frame cache's) is described at its code.
+
+This module is numpy + constriction + zlib only (no torch, no bpy).
 """
 from __future__ import annotations
 
 import math
 import struct
+import zlib
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -97,14 +100,18 @@ class Quantizer:
         object.__setattr__(self, "hi", hi)
 
     @classmethod
-    def fit(cls, params: np.ndarray, bits=8) -> "Quantizer":
-        """Ranges that just cover `params` [..., N, 8] (every value is then within half a step)."""
-        check_params(params)
-        flat = to_domain(params.reshape(-1, NUM_PARAMS))
-        if flat.shape[0] == 0:
-            lo, hi = np.zeros(NUM_PARAMS), np.zeros(NUM_PARAMS)
-        else:
-            lo, hi = flat.min(axis=0), flat.max(axis=0)
+    def fit(cls, params, bits=8) -> "Quantizer":
+        """Ranges that just cover `params` [..., N, 8], or an iterable of such arrays (e.g. a clip's frames
+        read one at a time from its cache): every value is then within half a step."""
+        lo, hi = np.zeros(NUM_PARAMS), np.zeros(NUM_PARAMS)
+        seen = False
+        for part in [params] if isinstance(params, np.ndarray) else params:
+            check_params(part)
+            flat = to_domain(np.asarray(part).reshape(-1, NUM_PARAMS))
+            if flat.shape[0]:
+                lo = np.minimum(lo, flat.min(axis=0)) if seen else flat.min(axis=0)
+                hi = np.maximum(hi, flat.max(axis=0)) if seen else flat.max(axis=0)
+                seen = True
         limits = np.array([LOG_LIMIT if t == LOG else LINEAR_LIMIT for t in TRANSFORMS])
         lo, hi = np.clip(lo, -limits, limits), np.clip(hi, -limits, limits)  # values past them get clipped
         lo[4], hi[4] = 0.0, ROTATION_PERIOD
@@ -414,6 +421,91 @@ def decode_group(payload: bytes, num_frames: int, num_gaussians: int, bits) -> I
         prev = cur
         yield cur.copy()
     if not ans.is_empty():
+        raise CodecError("damaged group: data left over after the last frame")
+
+
+# ---- the float16 payload (the frame cache: .hgs version 2) ---------------------------------------
+#
+# Visually lossless and fast to decode, for a cache read on every frame change: the means stay float32
+# (float16 would move them by up to 1/4 pixel on a 1080p canvas: -0.4 dB), the other six parameters are
+# float16 (relative error <= 2^-11; the rotation taken modulo pi first, as the quantizer does). A frame is
+# stored as byte planes (every value's first byte, then every second byte, ...: similar bytes side by
+# side) compressed with zlib at level 1, one zlib stream per frame, so any frame decodes on its own.
+# Payload of a group: per frame, uint32 length and the zlib stream.
+
+FLOAT16_MAX = 65504.0
+FLOAT16_TINY = 2.0 ** -14  # the smallest normal float16: smaller scales are raised to it (and counted)
+_FLOAT32_PARAMS = 2  # the means
+_FRAME_HEAD = struct.Struct("<I")
+
+
+def float16_frame_bytes(num_gaussians: int) -> int:
+    """Bytes of one frame of N Gaussians before compression."""
+    return num_gaussians * (4 * _FLOAT32_PARAMS + 2 * (NUM_PARAMS - _FLOAT32_PARAMS))
+
+
+def _byte_planes(values: np.ndarray) -> bytes:
+    """[N, k] little-endian values -> their bytes grouped by parameter, then by byte position."""
+    columns = np.ascontiguousarray(values.T)
+    k, n = columns.shape
+    return columns.view(np.uint8).reshape(k, n, values.dtype.itemsize).transpose(0, 2, 1).tobytes()
+
+
+def _from_byte_planes(data: np.ndarray, k: int, n: int, dtype) -> np.ndarray:
+    """The inverse of _byte_planes: [n, k] values of `dtype` (a view)."""
+    planes = data.reshape(k, np.dtype(dtype).itemsize, n)
+    # Stacking the byte planes as the last axis is 3x faster than a transposed copy.
+    return np.stack([planes[:, i] for i in range(planes.shape[1])], -1).view(dtype)[..., 0].T
+
+
+def encode_float16_group(params: np.ndarray) -> tuple[bytes, int]:
+    """params float [G, N, 8] -> (the group's payload, number of values clipped to float16's range).
+    Refuses NaN, infinite values and scales <= 0 (CodecError); scales are kept within
+    [FLOAT16_TINY, FLOAT16_MAX] and the other float16 values within +-FLOAT16_MAX."""
+    params = np.asarray(params)
+    if params.ndim != 3 or params.shape[2] != NUM_PARAMS or params.shape[0] < 1:
+        raise CodecError(f"a group must be [frames, N, {NUM_PARAMS}] parameters, got {params.shape}")
+    check_params(params)
+    low = np.full(NUM_PARAMS - _FLOAT32_PARAMS, -FLOAT16_MAX, np.float32)
+    low[:2] = FLOAT16_TINY
+    out, clipped = [], 0
+    for frame in params.astype(np.float32, copy=False):
+        rest = frame[:, _FLOAT32_PARAMS:].copy()
+        rest[:, 2] = np.mod(rest[:, 2], np.float32(ROTATION_PERIOD))
+        kept = np.clip(rest, low, np.float32(FLOAT16_MAX))
+        clipped += int(np.count_nonzero(kept != rest))
+        data = zlib.compress(_byte_planes(frame[:, :_FLOAT32_PARAMS].astype("<f4"))
+                             + _byte_planes(kept.astype("<f2")), 1)
+        out += [_FRAME_HEAD.pack(len(data)), data]
+    return b"".join(out), clipped
+
+
+def decode_float16_group(payload: bytes, num_frames: int, num_gaussians: int) -> Iterator[np.ndarray]:
+    """Yield the group's frames, float32 [N, 8] each. A damaged payload (wrong lengths, a zlib stream
+    that is broken or inflates to another size, values that are not Gaussians) raises CodecError."""
+    g, n = int(num_frames), int(num_gaussians)
+    if g < 1 or n < 0:
+        raise CodecError(f"damaged group: {g} frames of {n} Gaussians")
+    expected = float16_frame_bytes(n)
+    r = _Reader(payload)
+    for _ in range(g):
+        (length,) = _FRAME_HEAD.unpack(r.take(_FRAME_HEAD.size))
+        inflater = zlib.decompressobj()
+        try:
+            raw = inflater.decompress(r.take(length), expected + 1)  # never more than a frame's bytes
+        except zlib.error as e:
+            raise CodecError(f"damaged group: {e}") from None
+        if len(raw) != expected or not inflater.eof or inflater.unused_data:
+            raise CodecError("damaged group: a frame's data does not hold its Gaussians")
+        data = np.frombuffer(raw, np.uint8)
+        split = 4 * _FLOAT32_PARAMS * n
+        frame = np.empty((n, NUM_PARAMS), np.float32)
+        frame[:, :_FLOAT32_PARAMS] = _from_byte_planes(data[:split], _FLOAT32_PARAMS, n, "<f4")
+        frame[:, _FLOAT32_PARAMS:] = _from_byte_planes(data[split:], NUM_PARAMS - _FLOAT32_PARAMS, n, "<f2")
+        if not (np.isfinite(frame).all() and (frame[:, 2:4] > 0).all()):  # param_problem says which, slower
+            raise CodecError(f"damaged group: {param_problem(frame)}")
+        yield frame
+    if r.pos != len(r.data):
         raise CodecError("damaged group: data left over after the last frame")
 
 

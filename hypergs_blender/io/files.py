@@ -143,6 +143,27 @@ class AtomicOutput:
             raise HyperGSError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
 
 
+class StreamingWriter:
+    """Mixin of the streaming writers (.hgs, USD): `close()` finishes the file and moves it into place,
+    `abort()` drops it (the file at the path stays as it was); as a context manager, an exception
+    inside `with` aborts."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
 def discard_pending() -> None:
     """Remove every temporary file not yet committed (the command line calls this on any exit)."""
     for temp in list(_pending):
@@ -151,6 +172,37 @@ def discard_pending() -> None:
         except OSError:
             pass
         _pending.discard(temp)
+
+
+def make_folders(folder) -> list[Path]:
+    """Make `folder` and the folders above it that are missing; returns those made, outermost first
+    (for remove_folders). Raises HyperGSError naming the folder that cannot be made."""
+    folder = _path(folder)
+    missing = []
+    while not folder.is_dir() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    made = []
+    for path in reversed(missing):
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue  # made meanwhile (by another writer): not ours
+        except OSError as e:
+            remove_folders(made)
+            raise HyperGSError(f"{path}: cannot make the folder ({e.strerror})") from None
+        made.append(path)
+    return made
+
+
+def remove_folders(folders) -> None:
+    """Remove folders made by make_folders, innermost first, where they are empty (another file may have
+    gone there meanwhile: then it and the folders above it stay)."""
+    for path in reversed(list(folders)):
+        try:
+            path.rmdir()
+        except OSError:
+            return
 
 
 def write_bytes(path, data: bytes, inputs=()) -> None:

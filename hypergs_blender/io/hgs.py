@@ -2,16 +2,26 @@
 
 Layout (all integers little-endian; no pickle, nothing executable):
 
-  header   fixed part (`_HEADER`): magic b"\\x89HGS\\r\\n\\x1a\\n", version, flags, canvas width and
+  header   fixed part (`_HEADER`): magic b"\\x89HGS\\r\\n\\x1a\\n", version, codec, canvas width and
            height, fps, N (Gaussians per frame), grid (columns, rows), frame count, group size,
            8 bit depths, 8 coding transforms (codec.TRANSFORMS), 8 (lo, hi) ranges as float64,
            offset of the frame index, length of the JSON part;
            then the JSON part (UTF-8 object: {"source": {...}, "writer": ...});
            then CRC32 of everything before it.
   chunks   one per group of up to `group_size` frames: b"HGSC", first frame, frame count, payload
-           length, payload (codec.encode_group), CRC32 of the chunk header and payload.
+           length, payload, CRC32 of the chunk header and payload.
   index    b"HGSI", chunk count, then per chunk (file offset, chunk length, first frame, frame count),
            then CRC32 of the index. The index runs to the end of the file.
+
+Two codecs (the payloads, codec.py), one version each, so a reader that knows only version 1 says
+"update the add-on" for the other instead of decoding garbage:
+  QUANTIZED (version 1, codec field 0): quantized to the header's bit depths and ranges, residuals,
+           ANS (codec.encode_group). Small, lossy; a frame decodes with the frames before it in its
+           group. Exported clips.
+  FLOAT16   (version 2, codec field 1): means float32, the rest float16, per-frame zlib
+           (codec.encode_float16_group); the header's bits and ranges are unused. Visually lossless,
+           about 2x the size, and any frame decodes alone in a few ms: the frame cache Blender reads
+           on every frame change (io/cache.py), written with one frame per chunk.
 
 The writer writes the header first (frame count 0, index offset 0), streams chunks as groups fill,
 then writes the index and rewrites the header with the real frame count and index offset; it writes
@@ -38,13 +48,17 @@ from typing import Iterator
 import numpy as np
 
 from .. import limits
-from .codec import TRANSFORMS, CodecError, Quantizer, clip_bits, decode_group, encode_group
-from .files import AtomicOutput
+from .codec import (ROTATION_PERIOD, TRANSFORMS, CodecError, Quantizer, clip_bits, decode_float16_group,
+                    decode_group, encode_float16_group, encode_group)
+from .files import AtomicOutput, StreamingWriter
 from ..errors import HyperGSError
 from ..gaussians import MAX_FPS, MAX_GRID, NUM_PARAMS, GaussianVideo
 
 MAGIC = b"\x89HGS\r\n\x1a\n"
-VERSION = 1
+QUANTIZED, FLOAT16 = 0, 1  # codecs
+CODECS = {"quantized": QUANTIZED, "float16": FLOAT16}
+VERSIONS = {QUANTIZED: 1, FLOAT16: 2}  # the version a file of each codec has
+VERSION = max(VERSIONS.values())  # the newest this reader reads
 DEFAULT_GROUP_SIZE = 16
 MAX_GROUP_SIZE = 64
 
@@ -73,8 +87,12 @@ class HgsHeader:
     num_frames: int = 0
     index_offset: int = 0
     source: dict = field(default_factory=dict)
-    version: int = VERSION
+    codec: int = QUANTIZED
     json_bytes: bytes = b""
+
+    @property
+    def version(self) -> int:
+        return VERSIONS[self.codec]
 
     def pack(self) -> bytes:
         if not self.json_bytes:
@@ -85,7 +103,8 @@ class HgsHeader:
                 raise HgsError(f"clip metadata cannot be stored: {e}") from e
         limits.METADATA.check(len(self.json_bytes), "clip metadata")
         ranges = [v for pair in zip(self.quantizer.lo, self.quantizer.hi) for v in pair]
-        fixed = _HEADER.pack(MAGIC, self.version, 0, self.canvas_width, self.canvas_height, float(self.fps),
+        codec = self.codec if self.version > 1 else 0
+        fixed = _HEADER.pack(MAGIC, self.version, codec, self.canvas_width, self.canvas_height, float(self.fps),
                              self.num_gaussians, self.grid[0], self.grid[1], self.num_frames, self.group_size, 0,
                              *self.quantizer.bits, *TRANSFORMS, *ranges, self.index_offset, len(self.json_bytes))
         body = fixed + self.json_bytes
@@ -102,13 +121,15 @@ class HgsHeader:
             raise HgsError("not a .hgs Gaussian video file (wrong magic bytes)")
         if len(fixed) >= 10:
             (version,) = struct.unpack_from("<H", fixed, 8)
-            if version != VERSION:
+            if version not in VERSIONS.values():
                 newer = " (written by a newer HyperGS: update the add-on)" if version > VERSION else ""
-                raise HgsError(f"unsupported .hgs version {version}; this reader reads version {VERSION}{newer}")
+                raise HgsError(f"unsupported .hgs version {version}; this reader reads versions "
+                               f"{', '.join(map(str, sorted(VERSIONS.values())))}{newer}")
         if len(fixed) < _HEADER.size:
             raise HgsError("file is truncated inside the header")
         v = _HEADER.unpack(fixed)
-        (_, version, _flags, cw, ch, fps, n, gc, gr, frames, group, _res), rest = v[:12], v[12:]
+        (_, version, codec, cw, ch, fps, n, gc, gr, frames, group, _res), rest = v[:12], v[12:]
+        codec = QUANTIZED if version == 1 else codec  # version 1's field was unused
         bits, transforms, ranges = rest[:8], rest[8:16], rest[16:32]
         index_offset, json_len = rest[32], rest[33]
         if _HEADER.size + json_len + _CRC.size > file_size:
@@ -121,6 +142,8 @@ class HgsHeader:
         if _CRC.unpack(crc)[0] != zlib.crc32(fixed + json_bytes):
             raise HgsError("damaged header (checksum mismatch)")
         problems = []
+        if VERSIONS.get(codec) != version:
+            problems.append(f"codec {codec} in a version {version} file")
         if not (cw >= 1 and ch >= 1):
             problems.append(f"canvas {cw}x{ch}")
         if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
@@ -146,7 +169,7 @@ class HgsHeader:
         source = meta.get("source", {}) if isinstance(meta, dict) else None
         if not isinstance(source, dict):
             raise HgsError("damaged header: metadata is not a JSON object")
-        return cls(cw, ch, fps, n, (gc, gr), quantizer, group, frames, index_offset, source, version, json_bytes)
+        return cls(cw, ch, fps, n, (gc, gr), quantizer, group, frames, index_offset, source, codec, json_bytes)
 
 
 def _json_default(value):
@@ -159,19 +182,23 @@ def _json_default(value):
     raise TypeError(f"cannot store {type(value).__name__} in .hgs metadata")
 
 
-class HgsWriter:
+class HgsWriter(StreamingWriter):
     """Streaming .hgs writer: `write(params)` any number of frames at a time; memory holds one group.
 
         with HgsWriter(path, 256, 256, 1000, Quantizer.fit(params, 8)) as w:
             w.write(params)
 
-    quantizer: the ranges go into the header before any frame is seen; `Quantizer.fit` on the whole
-    clip when you have it, `Quantizer.default(w, h, bits)` otherwise (values outside are clipped and
-    counted in `clipped`). On an exception inside `with`, the partial file is removed."""
+    codec: "quantized" or "float16" (see the module doc). quantizer (quantized only): the ranges go
+    into the header before any frame is seen; `Quantizer.fit` on the whole clip when you have it,
+    `Quantizer.default(w, h, bits)` otherwise. Values outside the ranges (quantized) or float16's
+    (float16) are clipped and counted in `clipped`. On an exception inside `with`, or `abort()`, the
+    partial file is removed and the file at `path`, if any, stays as it was."""
 
     def __init__(self, path, canvas_width: int, canvas_height: int, num_gaussians: int,
                  quantizer: Quantizer | None = None, fps: float = 24.0, grid=(1, 1), source: dict | None = None,
-                 group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto", bits=8):
+                 group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto", bits=8, codec: str = "quantized"):
+        if codec not in CODECS:
+            raise HgsError(f"unknown .hgs codec {codec!r} (use {' or '.join(CODECS)})")
         if not 1 <= group_size <= MAX_GROUP_SIZE:
             raise HgsError(f"group size must be in 1..{MAX_GROUP_SIZE}, got {group_size}")
         if num_gaussians < 1:
@@ -184,10 +211,12 @@ class HgsWriter:
         if len(grid) != 2 or not all(1 <= g <= MAX_GRID for g in grid):
             raise HgsError(f"grid {grid} out of range")
         self.path = Path(path)
+        if CODECS[codec] == FLOAT16:  # the header's bits and ranges are unused: valid placeholders
+            quantizer = Quantizer(16, (0.0,) * 8, (0.0,) * 4 + (ROTATION_PERIOD,) + (0.0,) * 3)
         quantizer = quantizer or Quantizer.default(canvas_width, canvas_height,
                                                    clip_bits(bits, canvas_width, canvas_height))
         self.header = HgsHeader(int(canvas_width), int(canvas_height), float(fps), int(num_gaussians), grid,
-                                quantizer, int(group_size), source=dict(source or {}))
+                                quantizer, int(group_size), source=dict(source or {}), codec=CODECS[codec])
         self.mode = mode
         self.clipped = 0
         self._pending: list[np.ndarray] = []  # quantized frames of the group being filled
@@ -219,11 +248,14 @@ class HgsWriter:
         n = self.header.num_gaussians
         if params.ndim != 3 or params.shape[1:] != (n, NUM_PARAMS):
             raise HgsError(f"expected frames of [{n}, {NUM_PARAMS}] parameters, got {params.shape}")
-        try:
-            q, clipped = self.header.quantizer.quantize(params)
-        except CodecError as e:
-            raise HgsError(str(e)) from e
-        self.clipped += clipped
+        if self.header.codec == FLOAT16:
+            q = params  # checked and converted when its group is written
+        else:
+            try:
+                q, clipped = self.header.quantizer.quantize(params)
+            except CodecError as e:
+                raise HgsError(str(e)) from e
+            self.clipped += clipped
         for frame in q:
             self._pending.append(frame)
             if len(self._pending) == self.header.group_size:
@@ -233,7 +265,14 @@ class HgsWriter:
         if not self._pending:
             return
         first = self.num_frames - len(self._pending)
-        payload = encode_group(np.stack(self._pending), self.header.quantizer.bits, self.mode)
+        if self.header.codec == FLOAT16:
+            try:
+                payload, clipped = encode_float16_group(np.stack(self._pending))
+            except CodecError as e:
+                raise HgsError(str(e)) from e
+            self.clipped += clipped
+        else:
+            payload = encode_group(np.stack(self._pending), self.header.quantizer.bits, self.mode)
         if len(payload) >= 1 << 32:
             raise HgsError("a group is too large for the .hgs format; use a smaller group size")
         head = _CHUNK.pack(CHUNK_MAGIC, first, len(self._pending), 0, len(payload))
@@ -268,15 +307,6 @@ class HgsWriter:
         """Stop without producing a file (the file at the path, if any, stays as it was)."""
         self._file = None
         self._output.discard()
-
-    def __enter__(self) -> "HgsWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 class HgsReader:
@@ -323,6 +353,7 @@ class HgsReader:
     num_frames = property(lambda self: self.header.num_frames)
     grid = property(lambda self: self.header.grid)
     source = property(lambda self: self.header.source)
+    codec = property(lambda self: next(name for name, c in CODECS.items() if c == self.header.codec))
     quantizer = property(lambda self: self.header.quantizer)
 
     def _read_index(self) -> list[tuple[int, int, int, int]]:
@@ -379,9 +410,13 @@ class HgsReader:
     def _group_frames(self, chunk: int) -> Iterator[np.ndarray]:
         _, _, first, frames = self._entries[chunk]
         payload = self._payload(chunk)
+        h = self.header
         try:
-            for q in decode_group(payload, frames, self.header.num_gaussians, self.header.quantizer.bits):
-                yield self.header.quantizer.dequantize(q)
+            if h.codec == FLOAT16:
+                yield from decode_float16_group(payload, frames, h.num_gaussians)
+            else:
+                for q in decode_group(payload, frames, h.num_gaussians, h.quantizer.bits):
+                    yield h.quantizer.dequantize(q)
         except CodecError as e:
             raise HgsError(f"{self.path}: frames {first}..{first + frames - 1}: {e}") from None
 
@@ -446,13 +481,15 @@ class HgsReader:
             if p in (2, 3):
                 lo, hi = math.exp(lo), math.exp(hi)
             ranges[name] = [lo, hi]
+        quantized = h.codec == QUANTIZED
         chunk_bytes = [e[1] for e in self._entries]
         frame_pixels = h.canvas_width * h.canvas_height * max(1, h.num_frames)
         return {
             "path": str(self.path), "format": "hgs", "version": h.version, "file_bytes": self.file_size,
             "canvas": [h.canvas_width, h.canvas_height], "fps": h.fps, "num_frames": h.num_frames,
             "duration_s": h.num_frames / h.fps, "num_gaussians": h.num_gaussians, "grid": list(h.grid),
-            "bits": list(q.bits), "ranges": ranges, "group_size": h.group_size, "groups": len(self._entries),
+            "codec": self.codec, **({"bits": list(q.bits), "ranges": ranges} if quantized else {}),
+            "group_size": h.group_size, "groups": len(self._entries),
             "group_bytes": {"min": min(chunk_bytes, default=0), "max": max(chunk_bytes, default=0)},
             "bits_per_gaussian": 8 * self.file_size / max(1, h.num_frames * h.num_gaussians),
             "bpp_at_canvas": 8 * self.file_size / frame_pixels,
@@ -473,16 +510,19 @@ class HgsReader:
 
 
 def save_hgs(video: GaussianVideo, path, bits=8, group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto",
-             quantizer: Quantizer | None = None) -> int:
-    """Write a whole clip (ranges fitted to it unless a quantizer is given); returns the file size."""
+             quantizer: Quantizer | None = None, codec: str = "quantized") -> int:
+    """Write a whole clip (quantized: ranges fitted to it unless a quantizer is given); returns the file
+    size."""
     if video.num_frames == 0:
         raise HgsError("cannot save an empty clip (no frames)")
-    try:
-        quantizer = quantizer or Quantizer.fit(video.params, clip_bits(bits, video.canvas_width, video.canvas_height))
-    except CodecError as e:
-        raise HgsError(str(e)) from e
+    if codec == "quantized":
+        try:
+            quantizer = quantizer or Quantizer.fit(video.params, clip_bits(bits, video.canvas_width,
+                                                                           video.canvas_height))
+        except CodecError as e:
+            raise HgsError(str(e)) from e
     with HgsWriter(path, video.canvas_width, video.canvas_height, video.num_gaussians, quantizer, video.fps,
-                   video.grid, video.source, group_size, mode) as writer:
+                   video.grid, video.source, group_size, mode, codec=codec) as writer:
         for start in range(0, video.num_frames, group_size):
             writer.write(video.params[start:start + group_size])
     return Path(path).stat().st_size

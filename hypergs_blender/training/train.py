@@ -33,6 +33,7 @@ import torch.distributed as dist
 from ..gaussians import lattice_anchors
 from ..io.frames import read_frames
 from ..io.images import resize_exact
+from ..metrics import psnr, psnr_from_mse
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
 from . import data
@@ -58,10 +59,6 @@ def gaussians_for_step(spec: str, seed: int, step: int) -> int:
     lo, hi = (int(v) for v in spec.split(":")) if ":" in spec else (int(spec),) * 2
     rng = np.random.default_rng([seed, step, 7919])
     return int(round(math.exp(rng.uniform(math.log(lo), math.log(hi)))))
-
-
-def psnr_db(mse: float) -> float:
-    return 10 * math.log10(1 / max(mse, 1e-12))
 
 
 def rss_mb() -> float:
@@ -211,7 +208,7 @@ def run(args) -> None:
             step += 1
             wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
             if rank == 0:
-                train_psnr = psnr_db(float(mse.detach()))
+                train_psnr = float(psnr_from_mse(float(mse.detach())))
                 bar.set_postfix(psnr=f"{train_psnr:.2f}", refresh=False)
                 bar.update(1)
                 if step % args.log_every == 0:
@@ -280,10 +277,9 @@ class Evaluator:
             target = torch.from_numpy(frames).float().to(device) / 255
             for cell, cell_inputs in inputs.items():
                 params = self._encode(model, cell_inputs, cell, device)
-                render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE).clamp(0, 1)
-                mse = ((render - target) ** 2).mean((1, 2, 3))
+                render = render_torch(params, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE, EVAL_SIZE)
                 n = (EVAL_SIZE // cell) ** 2
-                results[f"{name}_n{n}"] = round(float((10 * torch.log10(1 / mse)).mean()), 3)
+                results[f"{name}_n{n}"] = round(float(psnr(render, target).mean()), 3)
         return results
 
     @staticmethod

@@ -1,20 +1,20 @@
-"""The encoder the operators use: `network.resolve_encoder` (the one policy: the bundled network,
-onnxruntime in a Blender without torch; what cannot load is reported, never replaced by another
-encoder), loaded once per Blender session and set of preferences. `HYPERGS_ENCODER=floor` picks the
-no-learning `FloorEncoder` instead (tests use it where the network's quality does not matter).
+"""The encoder an application keeps for its session (Blender's operators): `network.resolve_encoder`
+(the one policy: the bundled network, onnxruntime where torch is missing; what cannot load is reported,
+never replaced by another encoder), loaded once per session and `Runtime`. `HYPERGS_ENCODER=floor`
+picks the no-learning `FloorEncoder` instead (tests use it where the network's quality does not matter).
 
-Where the network runs is the add-on preferences' choice (ops/preferences.py), read on the main thread
-into a `Runtime` and turned into onnxruntime's execution providers here: a GPU provider when the
-user's onnxruntime has one (the bundled wheels have CoreML on macOS; CUDA and DirectML come with the
-onnxruntime-gpu / onnxruntime-directml packages), the CPU otherwise, with the preferred thread count.
+Where the network runs is a `Runtime` (in Blender the add-on preferences' choice, ops/preferences.py),
+turned into onnxruntime's execution providers here: a GPU provider when the user's onnxruntime has one
+(the bundled wheels have CoreML on macOS; CUDA and DirectML come with the onnxruntime-gpu /
+onnxruntime-directml packages), the CPU otherwise, with the preferred thread count.
 """
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
 
-from ..hypergs_blender.errors import HyperGSError
-from ..hypergs_blender.network import resolve_encoder
+from .errors import HyperGSError
+from .network import resolve_encoder
 
 ENCODER_ENV = "HYPERGS_ENCODER"
 CPU = "CPUExecutionProvider"
@@ -32,6 +32,11 @@ class Runtime:
     PROVIDERS; `threads` the CPU's (0: one per core)."""
     device: str = AUTO
     threads: int = 0
+
+    @property
+    def cpu_threads(self) -> int:
+        """The CPU threads the network runs on (for the time estimate)."""
+        return self.threads or os.cpu_count() or 1
 
 
 def available_providers() -> list[str]:
@@ -52,11 +57,12 @@ def providers_for(device: str, available: list[str]) -> list[str]:
 
 
 def make_encoder(runtime: Runtime = Runtime()):
+    """The session's encoder for `runtime` (loaded on first use; one network in memory at a time)."""
     choice = os.environ.get(ENCODER_ENV, "bundled").strip().lower()
     if choice not in ("bundled", "floor"):
         raise HyperGSError(f"{ENCODER_ENV}={choice!r}: use 'bundled' or 'floor'")
     key = (choice, runtime if choice == "bundled" else None)
-    if key not in _cache:  # loading the network is slow: once per Blender session and preferences
+    if key not in _cache:  # loading the network is slow: once per session and runtime
         _cache.clear()  # one network in memory
         _cache[key] = (resolve_encoder("floor") if choice == "floor" else
                        resolve_encoder("network", providers=providers_for(runtime.device, available_providers()),
@@ -65,7 +71,7 @@ def make_encoder(runtime: Runtime = Runtime()):
 
 
 def describe_encoder(encoder, runtime: Runtime) -> str:
-    """What encoded, for the clip panel and the operator's report: e.g. "network-onnx on CUDA",
+    """What encoded, for Blender's clip panel and the operator's report: e.g. "network-onnx on CUDA",
     "network-onnx on CPU (4 threads)", "floor"."""
     provider = getattr(encoder, "provider", None)
     if provider is None:

@@ -46,6 +46,7 @@ QUALITY = {  # cell size in source pixels and refine steps of each quality prese
     "high": dict(cell=4.0, refine=30),
 }
 DEFAULT_QUALITY = "standard"
+MODELS = ("conv", "transformer")  # the designs a user chooses between (network.DEFAULT_NAMES names their weights)
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,7 @@ class TileLayout(Layout):
     stride = canvas / k, not always a whole number)."""
     tiles: tuple[int, int] = (1, 1)
     canvas: int = 128
+    windows: int = 0  # the encoder's canvas-sized windows per frame (its forward passes; 0: not known)
 
     @property
     def per_tile(self) -> int:
@@ -170,7 +172,8 @@ def encoder_layout(encoder, width: int, height: int, gaussians: int | None = Non
     """The layout `encoder` encodes a width x height frame on: the transformer's patch grid (`grid`:
     (columns, rows), default the frame at its resolution), or cells at a density (plan_layout)."""
     if hasattr(encoder, "canvas"):
-        return plan_tile_layout(width, height, encoder.canvas, gaussians, cell, grid, encoder.gaussians)
+        layout = plan_tile_layout(width, height, encoder.canvas, gaussians, cell, grid, encoder.gaussians)
+        return replace(layout, windows=encoder.windows(layout.work_width, layout.work_height))
     if grid is not None and tuple(grid) != (1, 1):
         raise HyperGSError(f"the patch grid is the transformer's; the {encoder.name} encoder encodes at a density "
                            "(a Gaussian count or a cell size)")
@@ -181,33 +184,40 @@ def encoder_layout(encoder, width: int, height: int, gaussians: int | None = Non
 class EncodeSettings:
     """What a user asks of an encode: about `gaussians` per frame (the transformer: per tile) or cells
     of `cell` source pixels (one of the two), `refine` steps after the network, and the transformer's
-    patch `grid` (columns, rows; None: tiles of its canvas size). `choose` reads a user's choice;
-    `layout` is where the Gaussians of a frame go."""
+    patch `grid` (columns, rows; None: tiles of its canvas size); `model`, which design encodes (one
+    of MODELS: an application's encoder, runtime.make_encoder; the command line names weights instead).
+    `choose` reads a user's choice; `layout` is where the Gaussians of a frame go."""
     gaussians: int | None = None
     cell: float | None = None
     refine: int = 0
     note: str = ""  # why the settings differ from what was asked (refining needs PyTorch)
     grid: tuple[int, int] | None = None
+    model: str = MODELS[0]
 
     @classmethod
     def choose(cls, quality: str | None = None, gaussians: int | None = None, cell: float | None = None,
                refine: int | None = None, default: str = DEFAULT_QUALITY,
-               grid: tuple[int, int] | None = None) -> EncodeSettings:
+               grid: tuple[int, int] | None = None, model: str = MODELS[0]) -> EncodeSettings:
         """The one reading of a user's choice: a Quality preset (a key of QUALITY: its cell size and
         refine steps), else a Gaussian count, else a cell size (a count wins over a cell size), else the
         `default` preset. `refine`, when given, replaces the preset's steps (else 0 for a count or a cell).
-        `grid` is the transformer's patch grid (any of the three)."""
+        `grid` is the transformer's patch grid (any of the three), `model` one of MODELS."""
+        if model not in MODELS:
+            raise HyperGSError(f"unknown model {model!r} ({', '.join(MODELS)})")
         grid = None if grid is None else (int(grid[0]), int(grid[1]))
+        if grid is not None and min(grid) < 1:
+            raise HyperGSError(f"the patch grid must be at least 1x1, got {grid[0]}x{grid[1]}")
         if quality is None and gaussians is None and cell is None:
             quality = default
         if quality is not None:
             if quality not in QUALITY:
                 raise HyperGSError(f"unknown quality {quality!r} ({', '.join(QUALITY)})")
             preset = QUALITY[quality]
-            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine, grid=grid)
+            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine, grid=grid,
+                       model=model)
         if gaussians is not None:
-            return cls(gaussians=gaussians, refine=refine or 0, grid=grid)
-        return cls(cell=cell, refine=refine or 0, grid=grid)
+            return cls(gaussians=gaussians, refine=refine or 0, grid=grid, model=model)
+        return cls(cell=cell, refine=refine or 0, grid=grid, model=model)
 
     def runnable(self) -> EncodeSettings:
         """These settings as this Python can run them: refining needs PyTorch (Blender's Python has
@@ -245,11 +255,20 @@ class EncodeCost:
     refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
     refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
     blend_bytes_per_gaussian: float = 40.0  # the frame a clip's mesh holds: float32 position, scale, rotation, RGBA
+    # The transformer pays per canvas-sized window (TileLayout.windows) of n = k x k Gaussians:
+    # predict_s_per_window + predict_s_per_gaussian n + predict_s_per_pair n^2 (its query attention).
+    predict_s_per_window: float = 0.0
+    predict_s_per_pair: float = 0.0
 
 
-ENCODE_COSTS = {  # by encoder: "floor", or "network" (both backends)
+ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "transformer" (both backends)
     "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
     "network": EncodeCost(predict_s_per_gaussian=1.38e-5, cache_bytes_per_gaussian=12.4),
+    # The `small` preset (canvas 128, clips of 4 frames), onnxruntime on one thread, 4 frames of 256 x 256
+    # in 1 or 9 windows at 256 / 1024 / 3025 per window: 0.033 / 0.088 / 0.39 CPU s per window and
+    # frame (three trainings ran beside).
+    "transformer": EncodeCost(predict_s_per_gaussian=3.5e-5, predict_s_per_window=0.022, predict_s_per_pair=2.8e-8,
+                              cache_bytes_per_gaussian=12.4),
 }
 THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (0.93 CPU s on 2 vs 0.79 on 1)
 
@@ -264,12 +283,20 @@ class Estimate:
 
 def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
-    name: "floor", "network-onnx", ...) on `threads` CPU threads: time and size, from ENCODE_COSTS."""
-    cost = ENCODE_COSTS["floor" if encoder == "floor" else "network"]
+    name: "floor", "network-onnx", "transformer-onnx", ...) on `threads` CPU threads: time and size, from
+    ENCODE_COSTS."""
+    cost = ENCODE_COSTS[encoder.partition("-")[0]]
     n, threads = layout.count, max(1, int(threads))
     speedup = 1 + THREAD_GAIN * (threads - 1) if cost.threaded else 1.0
+    windows = getattr(layout, "windows", 0)
+    if windows:  # the transformer: each window predicts its k x k lattice points
+        per_window = layout.per_tile
+        predict = windows * (cost.predict_s_per_window + cost.predict_s_per_gaussian * per_window
+                             + cost.predict_s_per_pair * per_window ** 2)
+    else:
+        predict = cost.predict_s_per_gaussian * n
     per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
-                 + cost.predict_s_per_gaussian * n / speedup)
+                 + predict / speedup)
     if refine > 0:
         per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
     return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,

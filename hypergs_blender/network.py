@@ -156,6 +156,10 @@ class TransformerEncoder:
         """Where the windows' cores meet on a working frame of width x height: (columns, rows)."""
         return tuple([c0 for _, _, c0, _ in tiles(size, self.margin, 1, self.canvas)][1:] for size in (width, height))
 
+    def windows(self, width: int, height: int) -> int:
+        """The canvas-sized windows (forward passes per frame) covering a working frame of width x height."""
+        return len(tiles(width, self.margin, 1, self.canvas)) * len(tiles(height, self.margin, 1, self.canvas))
+
     def _axis(self, size: int, k: int) -> list[tuple[int, float, int, int, int]]:
         """Per window along an axis of `size` working pixels: (start, phase, first, lo, hi): the window's
         lattice points are the axis' points first .. first + k - 1 (points j at (j + 1/2) c / k), at

@@ -14,8 +14,8 @@ from hypergs_blender.gaussians import grid_anchors, lattice_anchors
 from hypergs_blender.model import HyperGS, TransformerConfig
 from hypergs_blender.network import TransformerEncoder, onnx_encoder, resolve_encoder, torch_encoder
 from hypergs_blender.training.export import card_of, export_onnx, save_weights
+from tiny_transformer import TINY
 
-TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
 
 
 def random_transformer(parametrization="local", seed=0) -> HyperGS:

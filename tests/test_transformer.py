@@ -212,12 +212,14 @@ def test_bench_designs_compares_at_equal_count_and_time(exported, moving_video):
     from hypergs_blender.encode import FloorEncoder
     transformer = resolve_encoder(weights=exported, backend="onnx")
     report = bench_designs([moving_video], FloorEncoder(), transformer, gaussians=(16, 64), grids=(1, 2),
-                           refine_steps=(1, 3), size=32, frames=4, device="cpu")
+                           refine_steps=(1, 3), size=32, frames=4, device="cpu",
+                           training=dict(step=2, cpu_hours=0.01, train_args=dict(steps=10)))
     first = report["summary"][0]
     assert [e["n"] for e in report["summary"]] == [16, 64] and first["videos"] == 1
     assert first["conv"]["gaussians"] == 16 and first["transformer"]["1"]["gaussians"] == 16
     assert [r["k"] for r in first["refine"]] == [1, 3]
     assert "| transformer, grid 2x2 |" in report["table"] and "30.3 dB" in report["table"]
+    assert "step 2 of the 10 its run planned, 0.01 CPU hours of training: undertrained" in report["table"]
 
 
 def test_train_then_export_a_transformer_run(tmp_path, monkeypatch, capsys):

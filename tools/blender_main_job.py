@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import shutil
@@ -166,7 +167,8 @@ def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> N
 def _transformer_conversion(bpy, addon, args, video: Path, out: Path, report: dict) -> None:
     """A few frames of the video as a movie strip above the others, converted with Model: HyperGS
     Transformer (weights from the preferences), N per tile on the patch grid; F12 of one frame against
-    the source. report["transformer"]: the Gaussians per frame against tiles x N, both PSNRs."""
+    the source. report["transformer"]: the Gaussians per frame against tiles x N (N rounded to a
+    square: the tile's k x k lattice), both PSNRs."""
     compat = addon_module(addon, "com.compat")
     preferences = addon_module(addon, "ops.preferences")
     bpy.context.preferences.addons[preferences.ADDON].preferences.transformer_weights = str(Path(args.transformer))
@@ -195,7 +197,8 @@ def _transformer_conversion(bpy, addon, args, video: Path, out: Path, report: di
     truth = source_frames(video, [frame + offset], scene.render.resolution_x, scene.render.resolution_y)
     f12 = float(psnr(read_png(bpy, png), truth[frame + offset]))
     report["transformer"] = dict(frames=s.num_frames, gaussians=s.gaussians_per_frame,
-                                 expected=columns * rows * args.transformer_gaussians, encoder=s.encoder,
+                                 expected=columns * rows * round(math.sqrt(args.transformer_gaussians)) ** 2,
+                                 encoder=s.encoder,  # expected: a k x k lattice per tile, k = round(sqrt(N))
                                  encode_psnr=s.psnr, psnr=f12, convert_s=convert_s, on_top=scene_strip.channel > channel)
     print(f"transformer: {s.num_frames} frames x {s.gaussians_per_frame} Gaussians ({columns}x{rows} tiles x "
           f"{args.transformer_gaussians}) with {s.encoder} in {convert_s:.1f} s (encode-time PSNR {s.psnr:.2f} dB); "

@@ -49,14 +49,16 @@ def _measure(params: np.ndarray, frames: np.ndarray, seconds: float, device: str
 
 def bench_designs(videos, conv, transformer, gaussians=DEFAULT_GAUSSIANS, grids=DEFAULT_GRIDS,
                   refine_steps=DEFAULT_REFINE_STEPS, size: int = 256, frames: int = 8, start: int = 0,
-                  device: str = "auto", progress=None) -> dict:
-    """conv, transformer: the two encoders (network.resolve_encoder). See the module doc."""
+                  device: str = "auto", progress=None, training: dict | None = None) -> dict:
+    """conv, transformer: the two encoders (network.resolve_encoder); training: the transformer card's
+    training info (`info`: step, cpu_hours, train_args), said beside the table. See the module doc."""
     from ..encode import frames_layout
     device = resolve_device(device)
     report = {"bench": "designs", "machine": machine_report(device),
               "settings": {"conv": conv.name, "transformer": transformer.name, "gaussians": list(gaussians),
                            "grids": list(grids), "refine_steps": list(refine_steps), "size": size, "frames": frames,
-                           "start": start, "videos": [str(v) for v in videos]},
+                           "start": start, "videos": [str(v) for v in videos],
+                           "transformer_training": training_summary(training)},
               "paper": {str(n): p for n, p in PAPER_FIGURES.items()}, "videos": []}
     for path in videos:
         clip, _, _ = load_frames(path, frames, size, start)
@@ -119,6 +121,13 @@ def _f(value, digits=2) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+def training_summary(info: dict | None) -> dict | None:
+    """step, planned steps and CPU hours of a model card's training info (None: unknown)."""
+    if not info or "step" not in info:
+        return None
+    return dict(step=info["step"], planned=info.get("train_args", {}).get("steps"), cpu_hours=info.get("cpu_hours"))
+
+
 def format_designs_table(report: dict) -> str:
     m, s = report["machine"], report["settings"]
     lines = [f"{m['date'][:10]}, {m['cpu']} ({m['cores']} cores; device {m['device']}, torch "
@@ -126,9 +135,16 @@ def format_designs_table(report: dict) -> str:
              f"frames per video from frame {s['start']}, {s['size']}x{s['size']}; encoders `{s['conv']}` and "
              f"`{s['transformer']}`; seconds are encode seconds per frame. Conv + refine at equal time: the conv "
              "network's PSNR after refining for the transformer's encode time (n/a: outside its refine ladder "
-             f"{s['refine_steps']}).", "",
-             "| videos | N per frame | design | Gaussians | PSNR dB | SSIM | Δ-PSNR dB | s/frame | conv + refine at equal time |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             f"{s['refine_steps']}).", ""]
+    trained = s.get("transformer_training")
+    if trained:
+        planned = trained["planned"]
+        short = planned and trained["step"] < planned
+        lines += [f"**The transformer's weights: step {trained['step']}" + (f" of the {planned} its run planned" if planned else "")
+                  + f", {trained['cpu_hours']} CPU hours of training" + (": undertrained, so its rows say what this "
+                  "checkpoint does, not what the design can do." if short else ".") + "**", ""]
+    lines += ["| videos | N per frame | design | Gaussians | PSNR dB | SSIM | Δ-PSNR dB | s/frame | conv + refine at equal time |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for e in report["summary"]:
         where = f"{e['set']} ({e['videos']})"
         c = e["conv"]

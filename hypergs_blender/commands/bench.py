@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
 from .. import limits
@@ -253,16 +254,17 @@ def _designs(parser):
         from ..bench.common import resolve_device
         from ..bench.designs import bench_designs
         from ..io.files import write_bytes
-        from ..network import resolve_encoder
+        from ..network import read_card, resolve_encoder, weights_name
         import torch
         torch.set_num_threads(args.threads)
         device = resolve_device(args.device)
         conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads)
-        bundled = WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json"
-        transformer = resolve_encoder("network", args.backend, args.transformer or bundled, device,
-                                      threads=args.threads)
+        weights = Path(args.transformer or WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json")
+        transformer = resolve_encoder("network", args.backend, weights, device, threads=args.threads)
+        folder, name = (weights.parent, weights.stem) if weights.suffix == ".json" else (weights, weights_name(weights))
         report = bench_designs(args.videos, conv, transformer, args.gaussians, args.grids, args.refine_steps,
-                               args.size, args.frames, args.start, device, progress=_progress)
+                               args.size, args.frames, args.start, device, progress=_progress,
+                               training=read_card(folder, name).get("info"))
         if args.table:
             write_bytes(args.table, ("# The paper's transformer against the conv network\n\nWritten by `hypergs bench "
                                      f"designs` (the command: README).\n\n{report['table']}\n").encode())

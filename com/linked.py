@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hypergs_blender.io.cache import _FileOnDemand  # noqa: F401  (how files are read; tests count its reads)
 from ..hypergs_blender.io.hgs import HgsReader
 from .cache import FRAMES
 

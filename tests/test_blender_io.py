@@ -488,7 +488,7 @@ def run_session(zip_path, work, out_path):
         save_hgs(big, path, group_size=4)  # 20 groups of frames
         bpy.ops.hypergs.import_clip(filepath=str(path), link=True)
         obj = bpy.context.view_layer.objects.active
-        counting = linked._FileOnDemand
+        counting = addon_module(addon, "hypergs_blender.io.cache")._FileOnDemand  # how linked files are read
         read = counting.read
         counted = []
 

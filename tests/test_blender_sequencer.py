@@ -10,8 +10,8 @@ import os
 import numpy as np
 import pytest
 from blender_headless import SAMPLE, install_extension, read_png, render_png, set_strip_range
-from blender_session import (Recorder, addon_module, attempt_unchanged, diff, operator_defaults, run_blender_session,
-                             session_main, snapshot, start_session, step, types_namespace)
+from blender_session import (Recorder, addon_module, attempt_unchanged, diff, files_under, operator_defaults,
+                             run_blender_session, session_main, snapshot, start_session, step, types_namespace)
 
 from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
 
@@ -74,12 +74,14 @@ def test_failed_conversions_change_nothing(session, case):
 def test_a_failure_after_the_first_clip_takes_it_back(session):
     r = step(session, "failures")["apply_fails"]
     assert r["added_before_failing"] == 2 and r["unchanged"], r["diff"]
+    assert r["cache_files_before"] == r["cache_files_after"]  # both clips' frame caches removed again
 
 
 def test_esc_during_the_second_clip_changes_nothing(session):
     r = step(session, "failures")["cancelled"]
     assert r["result"] == ["CANCELLED"] and r["encoded"] == 2
     assert r["unchanged"], r["diff"]
+    assert r["cache_files_before"] == r["cache_files_after"]  # the first clip's frame cache removed again
 
 
 def test_selected_strips_become_scene_strips(session):
@@ -202,14 +204,16 @@ def run_session(zip_path, work, out_path):
             return original(self, (lambda done, total: len(calls) < 2), *args, **kwargs)
 
         plan.chunks = cancel_in_the_second
-        before = snapshot(bpy)
+        caches = addon_module(addon, "com.cache").cache_folder()  # where the conversions write their caches
+        before, files_before = snapshot(bpy), files_under(caches)
         try:
             result = bpy.ops.hypergs.convert_strip()
         finally:
             plan.chunks = original
         after = snapshot(bpy)
         out["cancelled"] = dict(result=sorted(result), encoded=len(calls), unchanged=before == after,
-                                diff=diff(before, after))
+                                diff=diff(before, after), cache_files_before=files_before,
+                                cache_files_after=files_under(caches))
         scene_module = addon_module(addon, "ops.scene")
         add = scene_module.add_strip_scene
         added = []
@@ -221,11 +225,13 @@ def run_session(zip_path, work, out_path):
             return added[-1]
 
         scene_module.add_strip_scene = second_fails
+        files_before = files_under(caches)
         try:
             out["apply_fails"] = attempt("simulated failure", lambda: bpy.ops.hypergs.convert_strip())
         finally:
             scene_module.add_strip_scene = add
-        out["apply_fails"]["added_before_failing"] = len(added)
+        out["apply_fails"].update(added_before_failing=len(added), cache_files_before=files_before,
+                                  cache_files_after=files_under(caches))
         return out
 
     @record("convert")

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from blender_headless import install_extension, read_png
-from blender_session import (Recorder, addon_module, attempt_unchanged, cache_error, diff, mesh_frames,
+from blender_session import (Recorder, addon_module, attempt_unchanged, cache_error, diff, files_under, mesh_frames,
                              run_blender_session, session_main, snapshot, start_session, step, types_namespace)
 
 ENCODER = "floor"
@@ -20,7 +20,7 @@ T, N, CANVAS = 10, 200, (96, 64)  # the test clip: frames, Gaussians per frame, 
 SEQUENCE = 6  # PNG frames written for the image-sequence tests
 # Gaussian video files an import must refuse with a one-line message naming the file, changing nothing.
 BAD_FILES = ("negative_canvas.npz", "zero_gaussians.npz", "no_canvas.npz", "not_a_zip.npz", "truncated.npz",
-             "garbage.hgs", "garbage.usda")
+             "garbage.hgs", "garbage.usda", "damaged_frame.hgs")  # the last fails while its frames are copied
 SESSION_TIMEOUT = 300
 
 
@@ -139,6 +139,7 @@ def test_failed_import_names_the_file_and_leaves_every_datablock(session, case):
     assert r["expect"] in message and not message.startswith(("KeyError", "ValueError", "BadZipFile")), message
     assert "Traceback" not in message and "\n" not in message  # one line
     assert r["unchanged"], r["diff"]  # every collection of bpy.data (and the scene) exactly as before
+    assert r["cache_files_before"] == r["cache_files_after"]  # no frame cache (or part of one) left
 
 
 def test_linked_file_is_read_lazily(session):
@@ -474,7 +475,19 @@ def run_session(zip_path, work, out_path):
         (work / "truncated.npz").write_bytes((work / "orig.npz").read_bytes()[:300])
         (work / "garbage.hgs").write_bytes(bytes(range(256)) * 8)
         (work / "garbage.usda").write_text("#usda 1.0\ndef Points \"p\" { point3f[] points = [(1, 2)] }\n")
-        return {name: attempt(name, lambda: bpy.ops.hypergs.import_clip(filepath=str(work / name)))
+        from hypergs_blender.io.hgs import save_hgs
+        damaged = work / "damaged_frame.hgs"  # header and index fine, a frame's data not: found mid-copy
+        save_hgs(original, damaged, group_size=1)
+        data = bytearray(damaged.read_bytes())
+        data[int(len(data) * 0.7)] ^= 0xFF
+        damaged.write_bytes(bytes(data))
+        caches = addon_module(addon, "com.cache").cache_folder()
+
+        def tried(name):
+            before = files_under(caches)
+            out = attempt(name, lambda: bpy.ops.hypergs.import_clip(filepath=str(work / name)))
+            return dict(out, cache_files_before=before, cache_files_after=files_under(caches))
+        return {name: tried(name)
                 for name in BAD_FILES}
 
     @record("lazy")

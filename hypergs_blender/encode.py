@@ -6,12 +6,19 @@ size (in source pixels) is the density chosen. The encoder sees the frame resize
 at which every cell is `stride` pixels, predicts the Gaussians there, and they are stretched back onto
 the W x H canvas (exact covariance, gaussians.stretch_params).
 
+The paper's transformer (network.TransformerEncoder) has a fixed input canvas instead: its frame is
+the paper's patch grid of tiles (`TileLayout`, the settings' `grid`, `--grid`), the working frame a
+grid of canvas x canvas tiles, with a k x k lattice of Gaussians in each, chosen by a count per tile
+or a cell size. `encoder_layout` plans either.
+
 `EncodePlan` is the one streaming encode of a video (decode -> encode -> refine, chunk by chunk, with
 progress, cancel and the PSNR of sampled frames) that `hypergs encode`, Blender's conversions and the
 benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, the benches).
 
-Encoders: the trained network through torch or onnxruntime (network.py), and the grid floor that every
-model must beat (`FloorEncoder`). Each has `name`, `stride` and `predict(working frames) -> params`.
+Encoders: the trained networks through torch or onnxruntime (network.py), and the grid floor that
+every model must beat (`FloorEncoder`). Each has `name`, `tile_borders`, `release` and
+`predict(working frames, cells) -> params`; the conv network and the floor a `stride` and `granule`,
+the transformer a `canvas` and `clip_frames`.
 """
 from __future__ import annotations
 
@@ -22,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import metrics, optional
+from . import limits, metrics, optional
 from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
@@ -39,6 +46,7 @@ QUALITY = {  # cell size in source pixels and refine steps of each quality prese
     "high": dict(cell=4.0, refine=30),
 }
 DEFAULT_QUALITY = "standard"
+MODELS = ("conv", "transformer")  # the designs a user chooses between (network.DEFAULT_NAMES names their weights)
 
 
 @dataclass(frozen=True)
@@ -102,31 +110,114 @@ def plan_layout(width: int, height: int, stride: int, gaussians: int | None = No
 
 
 @dataclass(frozen=True)
+class TileLayout(Layout):
+    """The transformer's layout: the frame as a tiles = (columns, rows) patch grid, each tile canvas x
+    canvas working pixels holding a k x k lattice of Gaussians (cols = k columns, rows = k rows;
+    stride = canvas / k, not always a whole number)."""
+    tiles: tuple[int, int] = (1, 1)
+    canvas: int = 128
+    windows: int = 0  # the encoder's canvas-sized windows per frame (its forward passes; 0: not known)
+
+    @property
+    def per_tile(self) -> int:
+        return self.count // (self.tiles[0] * self.tiles[1])
+
+    @property
+    def work_width(self) -> int:
+        return self.tiles[0] * self.canvas
+
+    @property
+    def work_height(self) -> int:
+        return self.tiles[1] * self.canvas
+
+
+def plan_tile_layout(width: int, height: int, canvas: int, gaussians: int | None = None, cell: float | None = None,
+                     grid: tuple[int, int] | None = None, trained: tuple[int, int] = (1, 1 << 20)) -> TileLayout:
+    """The transformer's layout of a width x height frame: a grid (columns, rows) of tiles (default:
+    tiles of about `canvas` source pixels, the frame at its own resolution), each with about
+    `gaussians` Gaussians or cells of `cell` source pixels (exactly one of the two) on a k x k lattice.
+    A count per tile outside `trained` (the range the model was trained for) is clamped, and `note`
+    says so."""
+    if (gaussians is None) == (cell is None):
+        raise HyperGSError("give a Gaussian count or a cell size, not both")
+    if gaussians is not None and gaussians < 1:
+        raise HyperGSError(f"the Gaussian count must be at least 1, got {gaussians}")
+    if cell is not None and not cell > 0:
+        raise HyperGSError(f"the cell size must be positive, got {cell}")
+    columns, rows = grid or default_grid(width, height, canvas)
+    if columns < 1 or rows < 1:
+        raise HyperGSError(f"the patch grid must be at least 1x1, got {columns}x{rows}")
+    limits.check_image_size(columns * canvas, rows * canvas, f"a {columns}x{rows} patch grid of {canvas} px tiles")
+    if gaussians is not None:
+        wanted, asked = math.sqrt(gaussians), f"{gaussians} Gaussians per tile"
+    else:
+        wanted, asked = math.sqrt(width * height / (columns * rows)) / cell, f"cells of {cell:g} px"
+    lo, hi = math.ceil(math.sqrt(trained[0])), max(1, math.isqrt(trained[1]))
+    k = min(max(round(wanted), lo, 1), hi)
+    note = ""
+    if k != max(1, round(wanted)):
+        note = (f"{asked} on {width}x{height} ({columns}x{rows} tiles) is outside the trained range "
+                f"({trained[0]}-{trained[1]} per tile): using {k * k} per tile")
+    return TileLayout(width, height, columns * k, rows * k, canvas / k, note, (columns, rows), canvas)
+
+
+def default_grid(width: int, height: int, canvas: int) -> tuple[int, int]:
+    """The transformer's patch grid when none is asked for: tiles of about `canvas` source pixels (the
+    frame at its own resolution)."""
+    return max(1, round(width / canvas)), max(1, round(height / canvas))
+
+
+def encoder_layout(encoder, width: int, height: int, gaussians: int | None = None, cell: float | None = None,
+                   grid: tuple[int, int] | None = None) -> Layout:
+    """The layout `encoder` encodes a width x height frame on: the transformer's patch grid (`grid`:
+    (columns, rows), default the frame at its resolution), or cells at a density (plan_layout)."""
+    if hasattr(encoder, "canvas"):
+        layout = plan_tile_layout(width, height, encoder.canvas, gaussians, cell, grid, encoder.gaussians)
+        return replace(layout, windows=encoder.windows(layout.work_width, layout.work_height))
+    if grid is not None and tuple(grid) != (1, 1):
+        raise HyperGSError(f"the patch grid is the transformer's; the {encoder.name} encoder encodes at a density "
+                           "(a Gaussian count or a cell size)")
+    return plan_layout(width, height, encoder.stride, gaussians, cell, encoder.granule)
+
+
+@dataclass(frozen=True)
 class EncodeSettings:
-    """What a user asks of an encode: about `gaussians` per frame or cells of `cell` source pixels (one
-    of the two), and `refine` steps after the network. `choose` reads a user's choice; `layout` is
-    where the Gaussians of a frame go."""
+    """What a user asks of an encode: about `gaussians` per frame (the transformer: per tile) or cells
+    of `cell` source pixels (one of the two), `refine` steps after the network, and the transformer's
+    patch `grid` (columns, rows; None: tiles of its canvas size); `model`, which design encodes (one
+    of MODELS: an application's encoder, runtime.make_encoder; the command line names weights instead).
+    `choose` reads a user's choice; `layout` is where the Gaussians of a frame go."""
     gaussians: int | None = None
     cell: float | None = None
     refine: int = 0
     note: str = ""  # why the settings differ from what was asked (refining needs PyTorch)
+    grid: tuple[int, int] | None = None
+    model: str = MODELS[0]
 
     @classmethod
     def choose(cls, quality: str | None = None, gaussians: int | None = None, cell: float | None = None,
-               refine: int | None = None, default: str = DEFAULT_QUALITY) -> EncodeSettings:
+               refine: int | None = None, default: str = DEFAULT_QUALITY,
+               grid: tuple[int, int] | None = None, model: str = MODELS[0]) -> EncodeSettings:
         """The one reading of a user's choice: a Quality preset (a key of QUALITY: its cell size and
         refine steps), else a Gaussian count, else a cell size (a count wins over a cell size), else the
-        `default` preset. `refine`, when given, replaces the preset's steps (else 0 for a count or a cell)."""
+        `default` preset. `refine`, when given, replaces the preset's steps (else 0 for a count or a cell).
+        `grid` is the transformer's patch grid (any of the three), `model` one of MODELS."""
+        if model not in MODELS:
+            raise HyperGSError(f"unknown model {model!r} ({', '.join(MODELS)})")
+        grid = None if grid is None else (int(grid[0]), int(grid[1]))
+        if grid is not None and min(grid) < 1:
+            raise HyperGSError(f"the patch grid must be at least 1x1, got {grid[0]}x{grid[1]}")
         if quality is None and gaussians is None and cell is None:
             quality = default
         if quality is not None:
             if quality not in QUALITY:
                 raise HyperGSError(f"unknown quality {quality!r} ({', '.join(QUALITY)})")
             preset = QUALITY[quality]
-            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine)
+            return cls(cell=preset["cell"], refine=preset["refine"] if refine is None else refine, grid=grid,
+                       model=model)
         if gaussians is not None:
-            return cls(gaussians=gaussians, refine=refine or 0)
-        return cls(cell=cell, refine=refine or 0)
+            return cls(gaussians=gaussians, refine=refine or 0, grid=grid, model=model)
+        return cls(cell=cell, refine=refine or 0, grid=grid, model=model)
 
     def runnable(self) -> EncodeSettings:
         """These settings as this Python can run them: refining needs PyTorch (Blender's Python has
@@ -137,8 +228,9 @@ class EncodeSettings:
         return self
 
     def layout(self, width: int, height: int, encoder) -> Layout:
-        """The layout of a width x height frame for `encoder` (its stride and granule)."""
-        return plan_layout(width, height, encoder.stride, self.gaussians, self.cell, encoder.granule)
+        """The layout of a width x height frame for `encoder` (encoder_layout: its stride and granule, or
+        the transformer's canvas and patch grid)."""
+        return encoder_layout(encoder, width, height, self.gaussians, self.cell, self.grid)
 
 
 @dataclass(frozen=True)
@@ -163,11 +255,20 @@ class EncodeCost:
     refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
     refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
     blend_bytes_per_gaussian: float = 40.0  # the frame a clip's mesh holds: float32 position, scale, rotation, RGBA
+    # The transformer pays per canvas-sized window (TileLayout.windows) of n = k x k Gaussians:
+    # predict_s_per_window + predict_s_per_gaussian n + predict_s_per_pair n^2 (its query attention).
+    predict_s_per_window: float = 0.0
+    predict_s_per_pair: float = 0.0
 
 
-ENCODE_COSTS = {  # by encoder: "floor", or "network" (both backends)
+ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "transformer" (both backends)
     "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
     "network": EncodeCost(predict_s_per_gaussian=1.38e-5, cache_bytes_per_gaussian=12.4),
+    # The `small` preset (canvas 128, clips of 4 frames), onnxruntime on one thread, 4 frames of 256 x 256
+    # in 1 or 9 windows at 256 / 1024 / 3025 per window: 0.033 / 0.088 / 0.39 CPU s per window and
+    # frame (three trainings ran beside).
+    "transformer": EncodeCost(predict_s_per_gaussian=3.5e-5, predict_s_per_window=0.022, predict_s_per_pair=2.8e-8,
+                              cache_bytes_per_gaussian=12.4),
 }
 THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (0.93 CPU s on 2 vs 0.79 on 1)
 
@@ -182,16 +283,30 @@ class Estimate:
 
 def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
-    name: "floor", "network-onnx", ...) on `threads` CPU threads: time and size, from ENCODE_COSTS."""
-    cost = ENCODE_COSTS["floor" if encoder == "floor" else "network"]
+    name: "floor", "network-onnx", "transformer-onnx", ...) on `threads` CPU threads: time and size, from
+    ENCODE_COSTS."""
+    cost = ENCODE_COSTS[encoder.partition("-")[0]]
     n, threads = layout.count, max(1, int(threads))
     speedup = 1 + THREAD_GAIN * (threads - 1) if cost.threaded else 1.0
+    windows = getattr(layout, "windows", 0)
+    if windows:  # the transformer: each window predicts its k x k lattice points
+        per_window = layout.per_tile
+        predict = windows * (cost.predict_s_per_window + cost.predict_s_per_gaussian * per_window
+                             + cost.predict_s_per_pair * per_window ** 2)
+    else:
+        predict = cost.predict_s_per_gaussian * n
     per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
-                 + cost.predict_s_per_gaussian * n / speedup)
+                 + predict / speedup)
     if refine > 0:
         per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
     return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
                     cost.blend_bytes_per_gaussian * n)
+
+
+def check_cells(cells: tuple[int, int] | None, cols: int, rows: int) -> None:
+    """An encoder whose frame size fixes its cells (cols x rows) refuses a layout of other cells."""
+    if cells is not None and tuple(cells) != (cols, rows):
+        raise ValueError(f"the working frame holds {cols}x{rows} cells, not {cells[0]}x{cells[1]}")
 
 
 class FloorEncoder:
@@ -209,11 +324,13 @@ class FloorEncoder:
     def release(self) -> None:
         """Nothing to give back (the network's encoders free their runtime's memory here)."""
 
-    def predict(self, frames: np.ndarray) -> np.ndarray:
-        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]."""
+    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
+        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]
+        (`cells`, the layout's (cols, rows), must be the frame's)."""
         b, h, w, _ = frames.shape
         s = self.stride
         rows, cols = h // s, w // s
+        check_cells(cells, cols, rows)
         out = np.empty((b, rows, cols, 8), np.float32)
         out[..., 0] = ((np.arange(cols) + 0.5) * s * 2 / w - 1)[None, None, :]
         out[..., 1] = ((np.arange(rows) + 0.5) * s * 2 / h - 1)[None, :, None]
@@ -226,16 +343,17 @@ class FloorEncoder:
 def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
     steps against the frames (refine.refine_params, needs torch) when asked. Frames go to the encoder
-    as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame): memory
-    does not grow with T (16 working frames of 1080p at Standard were 700 MB as float32), and the
-    network's own passes are no larger."""
-    per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height))
+    as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame; whole clips
+    of the transformer's `clip_frames`): memory does not grow with T (16 working frames of 1080p at
+    Standard were 700 MB as float32), and the network's own passes are no larger."""
+    clip = getattr(encoder, "clip_frames", 1)
+    per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height * clip)) * clip
     params = np.empty((len(frames), layout.count, 8), np.float32)
     for start in range(0, len(frames), per_pass):
         work = np.stack([resize_exact(f, layout.work_width, layout.work_height)
                          for f in frames[start:start + per_pass]]).astype(np.float32)
         work /= 255
-        params[start:start + len(work)] = encoder.predict(work)
+        params[start:start + len(work)] = encoder.predict(work, (layout.cols, layout.rows))
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     if (tx, ty) != (1, 1):
         params = stretch_params(params, tx, ty)
@@ -245,9 +363,10 @@ def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) 
     return params
 
 
-def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None) -> Layout:
-    """The layout of frames [T, H, W, 3] for `gaussians` per frame or cells of `cell` pixels."""
-    return EncodeSettings(gaussians, cell).layout(frames.shape[2], frames.shape[1], encoder)
+def frames_layout(frames: np.ndarray, encoder, gaussians: int | None = None, cell: float | None = None,
+                  grid: tuple[int, int] | None = None) -> Layout:
+    """The layout of frames [T, H, W, 3] for `gaussians` per frame (per tile) or cells of `cell` pixels."""
+    return EncodeSettings(gaussians, cell, grid=grid).layout(frames.shape[2], frames.shape[1], encoder)
 
 
 class EncodePlan:
@@ -269,6 +388,7 @@ class EncodePlan:
 
     @property
     def grid(self) -> tuple[int, int]:
+        """What the clip records as its grid: the Gaussians' lattice (cols, rows), one per cell."""
         return self.layout.cols, self.layout.rows
 
     @property
@@ -278,9 +398,12 @@ class EncodePlan:
 
     def chunks(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0):
         """Yield (frames uint8 [t, H, W, 3], params [t, N, 8]) chunk by chunk: frames are decoded and
-        encoded (and refined) `chunk_frames` at a time, so memory does not grow with the video.
-        `progress` may return False to cancel (raises Cancelled). `psnr_frames` frames, spread evenly,
-        are rendered and measured against their source frame on the way (`psnr`)."""
+        encoded (and refined) `chunk_frames` at a time (rounded up to whole clips of the encoder's
+        `clip_frames`), so memory does not grow with the video. `progress` may return False to cancel
+        (raises Cancelled). `psnr_frames` frames, spread evenly, are rendered and measured against
+        their source frame on the way (`psnr`)."""
+        clip = getattr(self.encoder, "clip_frames", 1)
+        chunk_frames = -(-chunk_frames // clip) * clip
         total = len(self.indices)
         measured = set(np.round(np.linspace(0, total - 1, min(psnr_frames, total))).astype(int).tolist())
         self.psnr_values = []

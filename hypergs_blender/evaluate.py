@@ -57,7 +57,8 @@ def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> di
                  "tiles": [len(xs) + 1, len(ys) + 1],
                  "flat_ripple": metrics.flat_ripple(rendered, target, window=round(2 * layout.cell)),
                  "edge_bias": metrics.edge_bias(rendered, target)}
-    return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows],
+    tiles = dict(grid=list(layout.tiles), per_tile=layout.per_tile) if hasattr(layout, "tiles") else {}
+    return dict(width=w, height=h, frames=t, gaussians=layout.count, cells=[layout.cols, layout.rows], **tiles,
                 cell=round(layout.cell, 3), note=layout.note, refine=settings.refine, **metrics.summary(rendered, target),
                 floor_bilinear_psnr=bilinear_floor_psnr(source, layout.count), **artefacts,
                 encode_seconds=encode_seconds, decode_seconds=decode_seconds,

@@ -187,6 +187,20 @@ def grid_anchors(n: int, aspect: float = 1.0) -> np.ndarray:
     return np.concatenate(points).astype(np.float32)
 
 
+def lattice_anchors(k: int, phase) -> np.ndarray:
+    """k x k anchors over [-1, 1]^2 for each row of phase [B, 2] (x, y, in cells, in [0, 1)): the points
+    (j + phase) 2 / k - 1, j = 0 .. k - 1, row-major from the top-left -> [B, k * k, 2] float32.
+    Phase 0.5 is grid_anchors(k * k); any other is a window of a larger lattice of the same spacing
+    cut at any offset (a window k cells wide holds exactly k of its points per axis): how the
+    transformer sees the windows of a tiled frame (network.TransformerEncoder), and trains."""
+    phase = np.asarray(phase, np.float64).reshape(-1, 2)
+    j = np.arange(k)
+    out = np.empty((len(phase), k, k, 2), np.float32)
+    out[..., 0] = ((j + phase[:, 0:1]) * (2.0 / k) - 1)[:, None, :]
+    out[..., 1] = ((j + phase[:, 1:2]) * (2.0 / k) - 1)[:, :, None]
+    return out.reshape(-1, k * k, 2)
+
+
 def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
     """Scales and rotations of the Gaussians stretched by T = diag(tx, ty): the covariance T Sigma T
     re-factored as R diag(s^2) R^T, exactly. Means and colours are returned unchanged (means are in

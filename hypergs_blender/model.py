@@ -129,12 +129,12 @@ PRESETS = {
 
 
 def rope_angles(positions: torch.Tensor, dim: int, base: float) -> torch.Tensor:
-    """Rotary angles [L, dim / 2] for positions [L, k]: the dim/2 frequency slots are split evenly
-    between the k coordinates (k = 1: time; k = 2: (row, column))."""
+    """Rotary angles [..., L, dim / 2] for positions [..., L, k]: the dim/2 frequency slots are split
+    evenly between the k coordinates (k = 1: time; k = 2: (row, column))."""
     k = positions.shape[-1]
     per = dim // 2 // k
     inv_freq = base ** (-torch.arange(per, dtype=torch.float32, device=positions.device) / per)
-    return torch.cat([positions[:, i, None].float() * inv_freq for i in range(k)], dim=-1)
+    return torch.cat([positions[..., i, None].float() * inv_freq for i in range(k)], dim=-1)
 
 
 def apply_rope(x: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
@@ -233,8 +233,9 @@ class HyperGS(nn.Module):
             raise ValueError(f"unknown parametrization {cfg.parametrization!r}")
 
     def forward(self, frames: torch.Tensor, anchors: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:
-        """frames [B, T, c, c, 3] in [0, 1]; anchors [N, 2] in [-1, 1]; cell [1]: the anchor grid
-        spacing in [-1, 1] units (2 / sqrt(N) on a square grid). Returns params [B, T, N, 8]."""
+        """frames [B, T, c, c, 3] in [0, 1]; anchors [N, 2] or, one set per clip, [B, N, 2] in [-1, 1];
+        cell [1]: the anchor grid spacing in [-1, 1] units (2 / sqrt(N) on a square grid). Returns
+        params [B, T, N, 8]."""
         cfg = self.cfg
         b, t = frames.shape[:2]
         g, d = cfg.grid, cfg.dim
@@ -247,19 +248,25 @@ class HyperGS(nn.Module):
             z = block(z, spatial_angles, temporal_angles)
         z = (z + z0).reshape(b * t, g * g, d)
 
-        n = anchors.shape[0]
+        n = anchors.shape[-2]
+        anchors = anchors.reshape(-1, n, 2)  # [1 or B, N, 2]
+        per_clip = anchors.shape[0]
+
+        def per_frame(a: torch.Tensor) -> torch.Tensor:  # [1 or B, ...] -> [B*T, ...]
+            return a[:, None].expand(b, t, *a.shape[1:]).reshape(b * t, *a.shape[1:])
+
         if cfg.parametrization == "paper":
             tokens = self.gaussian_tokens[:n].expand(b * t, n, d)
             angles = None
         else:
-            sample_at = anchors.reshape(1, 1, n, 2).expand(b * t, 1, n, 2)
             feature_map = z.transpose(1, 2).reshape(b * t, d, g, g)
-            under_anchor = F.grid_sample(feature_map, sample_at, align_corners=False).reshape(b * t, d, n)
+            under_anchor = F.grid_sample(feature_map, per_frame(anchors)[:, None], align_corners=False)[:, :, 0]
             cell_pixels = self.cell_pixels(x, anchors, cell)  # [B*T, N, k*k, 3]
-            tokens = (under_anchor.transpose(1, 2) + self.anchor_embed(fourier_features(anchors))
+            tokens = (under_anchor.transpose(1, 2) + per_frame(self.anchor_embed(fourier_features(anchors)))
                       + self.cell_embed((cell_pixels.flatten(2) - 0.5) * 4))
             anchor_rc = (anchors.flip(-1) + 1) * (0.5 * g)  # (row, column) in patch units
-            angles = rope_angles(torch.cat([self.patch_rc, anchor_rc]), d // cfg.heads, cfg.rope_base)
+            positions = torch.cat([self.patch_rc.expand(per_clip, g * g, 2), anchor_rc], 1)
+            angles = per_frame(rope_angles(positions, d // cfg.heads, cfg.rope_base))[:, None]  # [B*T, 1, L, d/2]
         h = torch.cat([z, tokens], dim=1)
         for block in self.q_blocks:
             h = block(h, angles)
@@ -270,7 +277,7 @@ class HyperGS(nn.Module):
             scales = h[..., 2:4].abs() + SCALE_EPS
             colours = torch.sigmoid(h[..., 5:8])
         else:
-            base = torch.atanh(anchors.clamp(-0.999, 0.999))
+            base = torch.atanh(anchors.clamp(-0.999, 0.999))[:, None]  # [1 or B, 1, N, 2]
             means = torch.tanh(base + cell * h[..., 0:2])
             spacing_px = cell * (0.5 * cfg.canvas)
             scales = (h[..., 2:4].abs() + SCALE_EPS) * spacing_px
@@ -279,16 +286,15 @@ class HyperGS(nn.Module):
         rotation = torch.sigmoid(h[..., 4:5]) * (2 * math.pi)
         return torch.cat([means, scales, rotation, colours], dim=-1)
 
-
     def cell_pixels(self, x: torch.Tensor, anchors: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:
         """Bilinear samples of the frames x [B, 3, T, c, c] on a k x k lattice spanning each anchor's
-        grid cell -> [B*T, N, k*k, 3]."""
+        grid cell (anchors [1 or B, N, 2]) -> [B*T, N, k*k, 3]."""
         b, _, t, c, _ = x.shape
-        n = anchors.shape[0]
-        points = anchors[:, None, :] + cell * self.cell_offsets[None]  # [N, k*k, 2]
+        n = anchors.shape[1]
+        points = anchors[:, :, None, :] + cell * self.cell_offsets  # [1 or B, N, k*k, 2]
+        points = points[:, None].expand(b, t, n, points.shape[2], 2).reshape(b * t, n, points.shape[2], 2)
         frames = x.transpose(1, 2).reshape(b * t, 3, c, c)
-        grid = points.reshape(1, n, -1, 2).expand(b * t, n, points.shape[1], 2)
-        samples = F.grid_sample(frames, grid, align_corners=False, padding_mode="border")  # [B*T, 3, N, k*k]
+        samples = F.grid_sample(frames, points, align_corners=False, padding_mode="border")  # [B*T, 3, N, k*k]
         return samples.permute(0, 2, 3, 1)
 
 

@@ -1,11 +1,16 @@
-"""The trained network as an encoder: weights on disk (a JSON card, .safetensors for torch, .onnx for
-onnxruntime), the torch and onnxruntime backends behind one `predict(working frames) -> params`
-interface (encode.py), and `resolve_encoder`, the one place that picks an encoder (and says plainly
-why one cannot load).
+"""The trained networks as encoders: weights on disk (a JSON card, .safetensors for torch, .onnx for
+onnxruntime), the torch and onnxruntime backends behind one `predict(working frames, cells) ->
+params` interface (encode.py), and `resolve_encoder`, the one place that picks an encoder (and says
+plainly why one cannot load). The card's `arch` says which design the weights are:
 
-Large frames are encoded in tiles (`tiles`): windows of at most TILE working pixels a side that
-overlap by the network's reach, so every Gaussian is predicted from the same pixels as in one pass
-over the whole frame (seamless by construction), and memory is bounded.
+- "conv" (the default, `NetworkEncoder`): large frames are encoded in tiles (`tiles`): windows of at
+  most TILE working pixels a side that overlap by the network's reach, so every Gaussian is predicted
+  from the same pixels as in one pass over the whole frame (seamless by construction), and memory is
+  bounded.
+- "transformer" (the paper's, `TransformerEncoder`): its input is a fixed canvas; a frame is encoded
+  as the paper's patch grid of canvas-sized tiles (encode.TileLayout), a k x k lattice of Gaussians in
+  each, through canvas-sized windows that overlap by a context margin; each window keeps the
+  Gaussians of its core (`tiles` again), so every Gaussian was predicted with context on all sides.
 
 Memory (measured on a 1080p frame at the Standard density, a 1280 x 720 working frame): a forward
 pass's activations are ~0.6 GB per working frame. onnxruntime keeps what a run allocated in its arena
@@ -25,13 +30,18 @@ from pathlib import Path
 import numpy as np
 
 from . import optional
-from .encode import BATCH_PIXELS, FloorEncoder
+from .encode import BATCH_PIXELS, FloorEncoder, check_cells
 from .errors import HyperGSError
+from .gaussians import lattice_anchors
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-BUNDLED_NAME = "hypergs"
+BUNDLED_NAME = "hypergs"  # the bundled conv network, the default model
+DEFAULT_NAMES = {"conv": BUNDLED_NAME, "transformer": "hypergs_transformer"}  # what `hypergs export` names each design
 BACKENDS = ("auto", "torch", "onnx")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
+# The transformer's attention pairs (query x key tokens, all frames) per forward pass: onnxruntime holds
+# each attention's scores whole (6 heads x 4 bytes each for `small`: ~200 MB), torch's kernel does not.
+BATCH_PAIRS = 1 << 23
 
 
 def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[int, int, int, int]]:
@@ -53,6 +63,15 @@ def tiles(size: int, reach: int, multiple: int, tile: int = TILE) -> list[tuple[
     return out
 
 
+def release_arena(session, tiny_inputs: dict) -> None:
+    """Give back the memory onnxruntime's CPU arena kept from the passes so far: the arena frees the
+    regions no tensor uses at the end of a run that asks for it, here one on `tiny_inputs`."""
+    import onnxruntime as ort
+    options = ort.RunOptions()
+    options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
+    session.run(None, tiny_inputs, options)
+
+
 class NetworkEncoder:
     """Runs `forward(frames float32 [B, h, w, 3]) -> params [B, (h/stride)(w/stride), 8]` (a network on
     any backend) over working frames of any size, tiled (see the module doc). stride, multiple and
@@ -70,23 +89,20 @@ class NetworkEncoder:
         """Give back the memory the runtime kept from the passes so far (onnxruntime's arena; torch's
         CPU allocator keeps none): call it after a conversion. The encoder stays usable."""
         if self.session is not None:
-            import onnxruntime as ort
-            options = ort.RunOptions()
-            options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
-            # The arena frees the regions no tensor uses at the end of a run that asks for it: a tiny one.
-            tiny = np.zeros((1, self.multiple, self.multiple, 3), np.float32)
-            self.session.run(None, {self.session.get_inputs()[0].name: tiny}, options)
+            release_arena(self.session, {"frames": np.zeros((1, self.multiple, self.multiple, 3), np.float32)})
 
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         """Where the tiles' cores meet on a working frame of width x height: (columns, rows)."""
         return tuple([c0 for _, _, c0, _ in tiles(size, self.reach, self.multiple, self.tile)][1:]
                      for size in (width, height))
 
-    def predict(self, frames: np.ndarray) -> np.ndarray:
+    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1] (H, W multiples of the network's `multiple`) -> params
-        [B, N, 8] on the W x H canvas, row-major over the (H / stride) x (W / stride) cells."""
+        [B, N, 8] on the W x H canvas, row-major over the (H / stride) x (W / stride) cells (`cells`,
+        the layout's (cols, rows), must be those)."""
         b, h, w, _ = frames.shape
         s = self.stride
+        check_cells(cells, w // s, h // s)
         out = np.empty((b, h // s, w // s, 8), np.float32)
         windows = [(y, x) for y in tiles(h, self.reach, self.multiple, self.tile)
                    for x in tiles(w, self.reach, self.multiple, self.tile)]
@@ -108,11 +124,121 @@ class NetworkEncoder:
         return out.reshape(b, -1, 8)
 
 
+class TransformerEncoder:
+    """Runs the paper's transformer, `forward(frames float32 [B, T, c, c, 3], anchors [B, N, 2], cell [1])
+    -> params [B, T, N, 8]` (model.HyperGS on any backend), over working frames that are a patch grid
+    of c x c tiles (c: the canvas), with a k x k lattice of Gaussians per tile (encode.TileLayout).
+
+    The frame is covered by c x c windows whose cores partition it and which reach at least `margin`
+    working pixels beyond their cores (`tiles`); every window sees the lattice points inside it (exactly
+    k x k, at the window's phase: gaussians.lattice_anchors) and keeps the Gaussians of the points in
+    its core. Every Gaussian thus sees context on all sides, as in training, and none is predicted
+    twice. With margin 0 the windows are the tiles themselves (the paper's patch grid; the "paper"
+    parametrization, whose Gaussians are not tied to anchors, encodes so). Frames are taken in clips of
+    `clip_frames` (the last one padded with its last frame), all windows of all clips in as few
+    forward passes as BATCH_PAIRS allows."""
+
+    def __init__(self, forward, canvas: int, clip_frames: int, patch: int, name: str, margin: int,
+                 gaussians: tuple[int, int], session=None):
+        self.forward, self.name, self.session = forward, name, session
+        self.provider = session.get_providers()[0] if session is not None else None
+        self.canvas, self.clip_frames, self.patch, self.margin = int(canvas), int(clip_frames), int(patch), int(margin)
+        self.gaussians = tuple(int(g) for g in gaussians)  # Gaussians per tile it was trained for (min, max)
+
+    def release(self) -> None:
+        """Give back the memory the runtime kept from the passes so far (as NetworkEncoder.release)."""
+        if self.session is not None:
+            release_arena(self.session, {"frames": np.zeros((1, self.clip_frames, self.canvas, self.canvas, 3), np.float32),
+                                         "anchors": np.zeros((1, 1, 2), np.float32),
+                                         "cell": np.array([2.0], np.float32)})
+
+    def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
+        """Where the windows' cores meet on a working frame of width x height: (columns, rows)."""
+        return tuple([c0 for _, _, c0, _ in tiles(size, self.margin, 1, self.canvas)][1:] for size in (width, height))
+
+    def windows(self, width: int, height: int) -> int:
+        """The canvas-sized windows (forward passes per frame) covering a working frame of width x height."""
+        return len(tiles(width, self.margin, 1, self.canvas)) * len(tiles(height, self.margin, 1, self.canvas))
+
+    def _axis(self, size: int, k: int) -> list[tuple[int, float, int, int, int]]:
+        """Per window along an axis of `size` working pixels: (start, phase, first, lo, hi): the window's
+        lattice points are the axis' points first .. first + k - 1 (points j at (j + 1/2) c / k), at
+        that phase in the window, and those of its core are its own points lo .. hi - 1."""
+        c, out = self.canvas, []
+
+        def first_at_or_after(x: int) -> int:  # the first point at or after working pixel x
+            return -(-(2 * k * x - c) // (2 * c))
+
+        for start, _, c0, c1 in tiles(size, self.margin, 1, c):
+            first = first_at_or_after(start)
+            out.append((start, first + 0.5 - start * k / c, first, first_at_or_after(c0) - first,
+                        first_at_or_after(c1) - first))
+        return out
+
+    def predict(self, frames: np.ndarray, cells: tuple[int, int]) -> np.ndarray:
+        """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the canvas; cells: the Gaussian
+        lattice (cols, rows), k per tile along each axis -> params [B, rows * cols, 8] on the W x H
+        canvas, row-major over the lattice."""
+        b, h, w, _ = frames.shape
+        c, t = self.canvas, self.clip_frames
+        cols, rows = cells
+        k = cols * c // w
+        if h % c or w % c or k < 1 or cols * c != k * w or rows * c != k * h:
+            raise ValueError(f"a {w}x{h} working frame of {c} px tiles cannot hold a {cols}x{rows} lattice")
+        clips = -(-b // t)
+        padded = np.concatenate([frames, np.repeat(frames[-1:], clips * t - b, 0)]) if clips * t > b else frames
+        padded = padded.reshape(clips, t, h, w, 3)
+        jobs = [(i, y, x) for i in range(clips) for y in self._axis(h, k) for x in self._axis(w, k)]
+        out = np.empty((clips, t, rows, cols, 8), np.float32)
+        per_call = max(1, BATCH_PAIRS // (t * ((c // self.patch) ** 2 + k * k) ** 2))
+        cell = np.array([2.0 / k], np.float32)
+        for n in range(0, len(jobs), per_call):
+            batch = jobs[n:n + per_call]
+            crops = np.stack([padded[i, :, y[0]:y[0] + c, x[0]:x[0] + c] for i, y, x in batch])
+            anchors = lattice_anchors(k, [(x[1], y[1]) for _, y, x in batch])
+            params = np.asarray(self.forward(np.ascontiguousarray(crops, np.float32), anchors, cell))
+            for p, (i, (ya, _, fy, y0, y1), (xa, _, fx, x0, x1)) in zip(params.reshape(len(batch), t, k, k, 8), batch):
+                kept = p[:, y0:y1, x0:x1].copy()
+                # window canvas [-1, 1] -> the whole frame's canvas
+                kept[..., 0] = ((kept[..., 0] + 1) * (0.5 * c) + xa) * (2.0 / w) - 1
+                kept[..., 1] = ((kept[..., 1] + 1) * (0.5 * c) + ya) * (2.0 / h) - 1
+                out[i, :, fy + y0:fy + y1, fx + x0:fx + x1] = kept
+        return out.reshape(clips * t, rows * cols, 8)[:b]
+
+
+def transformer_geometry(cfg, gaussians: tuple[int, int] | None = None) -> dict:
+    """What TransformerEncoder needs of a transformer's config (model.TransformerConfig), as its card
+    stores it: the canvas, clip length and patch; the context margin of its windows (an eighth of the
+    canvas for the "local" parametrization, whose Gaussians belong to anchors; none for "paper"); the Gaussians
+    per tile it was trained for (default: up to one per 2 x 2 canvas pixels, or the "paper"
+    parametrization's learned tokens)."""
+    local = cfg.parametrization == "local"
+    most = (cfg.canvas // 2) ** 2 if local else cfg.max_gaussians
+    return dict(canvas=cfg.canvas, clip_frames=cfg.clip_frames, patch=cfg.patch, margin=cfg.canvas // 8 if local else 0,
+                gaussians=list(gaussians or (1, most)))
+
+
 def read_card(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME) -> dict:
     path = Path(directory) / f"{name}.json"
     if not path.is_file():
         raise HyperGSError(f"no model weights at {path}: train one with `hypergs train` and `hypergs export`")
     return json.loads(path.read_text())
+
+
+def weights_name(directory, name: str | None = None) -> str:
+    """The name of the model to load from a weights folder: `name`, or the bundled name when the folder
+    holds that model, or the folder's only model (a <name>.json card)."""
+    if name is not None:
+        return name
+    directory = Path(directory)
+    if (directory / f"{BUNDLED_NAME}.json").is_file():
+        return BUNDLED_NAME
+    cards = sorted(p.stem for p in directory.glob("*.json"))
+    if len(cards) == 1:
+        return cards[0]
+    if not cards:
+        raise HyperGSError(f"no model weights in {directory}: train one with `hypergs train` and `hypergs export`")
+    raise HyperGSError(f"{directory} holds several models ({', '.join(cards)}): name one")
 
 
 def load_model(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME):
@@ -125,19 +251,32 @@ def load_model(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME):
     return model.eval()
 
 
-def torch_encoder(model, device="cpu") -> NetworkEncoder:
+def _transformer_encoder(forward, card: dict, name: str, session=None) -> TransformerEncoder:
+    geometry = card["geometry"]  # written by training.export from the model's config
+    return TransformerEncoder(forward, geometry["canvas"], geometry["clip_frames"], geometry["patch"], name,
+                              geometry["margin"], geometry["gaussians"], session)
+
+
+def torch_encoder(model, device="cpu", card: dict | None = None):
+    """The encoder running `model` (either design) with torch; card: its card (default: as exported)."""
     import torch
     model = model.to(device).eval()
+    cfg = model.cfg
+    if cfg.arch == "transformer":
+        def forward(frames: np.ndarray, anchors: np.ndarray, cell: np.ndarray) -> np.ndarray:
+            with torch.inference_mode():
+                return model(*(torch.from_numpy(a).to(device) for a in (frames, anchors, cell))).float().cpu().numpy()
+
+        return _transformer_encoder(forward, card or dict(geometry=transformer_geometry(cfg)), "transformer-torch")
 
     def forward(frames: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
             return model(torch.from_numpy(frames).to(device)).float().cpu().numpy()
 
-    cfg = model.cfg
     return NetworkEncoder(forward, cfg.stride, cfg.multiple, cfg.reach, "network-torch")
 
 
-def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, threads: int = 0) -> NetworkEncoder:
+def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, threads: int = 0):
     """providers: onnxruntime execution providers, best first (default: the CPU's); threads: the CPU
     provider's intra-op threads (0: onnxruntime's default, one per core)."""
     import onnxruntime as ort
@@ -146,6 +285,11 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
     options.enable_mem_pattern = False  # a buffer plan per input shape, kept: 2x the memory, no faster
     options.intra_op_num_threads = threads
     session = ort.InferenceSession(str(onnx_path), options, providers=providers or ["CPUExecutionProvider"])
+    if card.get("arch") == "transformer":
+        def forward(frames: np.ndarray, anchors: np.ndarray, cell: np.ndarray) -> np.ndarray:
+            return session.run(["params"], {"frames": frames, "anchors": anchors, "cell": cell})[0]
+
+        return _transformer_encoder(forward, card, "transformer-onnx", session)
 
     def forward(frames: np.ndarray) -> np.ndarray:
         return session.run(["params"], {"frames": frames})[0]
@@ -157,31 +301,34 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
 
 def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, device=None,
                     providers: list[str] | None = None, threads: int = 0):
-    """The encoder to use. kind: "network" (the trained network in `weights`, default the bundled one)
-    or "floor" (the no-learning grid floor). backend for the network: "torch" (needs torch and the
-    .safetensors weights), "onnx" (needs onnxruntime and the .onnx model), or "auto": torch where both
-    are there, else onnx. providers, threads: onnxruntime's execution providers and CPU threads (see
-    onnx_encoder). What cannot load raises HyperGSError saying why; nothing falls back to another kind
-    of encoder."""
+    """The encoder to use. kind: "network" (a trained network: `weights` is a folder (its model, see
+    weights_name) or a model's card in one, <folder>/<name>.json; default the bundled conv network; the
+    card says which design it is) or "floor" (the no-learning grid floor). backend for the network: "torch" (needs torch and the .safetensors weights), "onnx"
+    (needs onnxruntime and the .onnx model), or "auto": torch where both are there, else onnx.
+    providers, threads: onnxruntime's execution providers and CPU threads (see onnx_encoder). What
+    cannot load raises HyperGSError saying why; nothing falls back to another kind of encoder."""
     if kind == "floor":
         return FloorEncoder()
     if kind != "network":
         raise HyperGSError(f"unknown encoder {kind!r} (network or floor)")
     if backend not in BACKENDS:
         raise HyperGSError(f"unknown encoder backend {backend!r} ({', '.join(BACKENDS)})")
-    directory = Path(weights or WEIGHTS_DIR)
+    directory, name = Path(weights or WEIGHTS_DIR), None
+    if directory.suffix == ".json":
+        directory, name = directory.parent, directory.stem
+    name = weights_name(directory, name)
+    card = read_card(directory, name)
     if backend == "auto":
-        has_weights = (directory / f"{BUNDLED_NAME}.safetensors").is_file()
-        backend = "torch" if optional.torch_available() and has_weights else "onnx"
+        backend = "torch" if optional.torch_available() and (directory / f"{name}.safetensors").is_file() else "onnx"
     try:
         if backend == "torch":
             import torch
             device = device or ("cuda" if torch.cuda.is_available() else "cpu")
-            return torch_encoder(load_model(directory), device)
-        onnx_path = directory / f"{BUNDLED_NAME}.onnx"
+            return torch_encoder(load_model(directory, name), device, card)
+        onnx_path = directory / f"{name}.onnx"
         if not onnx_path.is_file():
             raise HyperGSError(f"no ONNX model at {onnx_path}: run `hypergs export-onnx`")
-        return onnx_encoder(onnx_path, read_card(directory), providers, threads)
+        return onnx_encoder(onnx_path, card, providers, threads)
     except HyperGSError:
         raise
     except Exception as e:  # a missing package or a broken weights file, said plainly

@@ -45,7 +45,7 @@ class EncodeResult:
 
 def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, runtime: Runtime = Runtime(),
                progress=None) -> EncodeResult:
-    """Encode `source` with `encoder` (make_encoder(runtime)) into a new frame cache at `target` (its
+    """Encode `source` with `encoder` (make_encoder(runtime, settings.model)) into a new frame cache at `target` (its
     folder must exist), measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
     progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
@@ -84,7 +84,7 @@ class EncodeJob:
 
     def _run(self):
         try:
-            encoder = make_encoder(self.runtime)
+            encoder = make_encoder(self.runtime, self.settings.model)
             try:
                 for self.index, (source, target) in enumerate(zip(self.sources, self.targets)):
                     self.done = self.total = 0

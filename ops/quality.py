@@ -1,8 +1,11 @@
-"""The encode options a user chooses and what they mean, in one place: a Quality preset (Draft /
-Standard / High: the core's encode.QUALITY, a cell size in source pixels and refine steps) or Custom
-values (cell size or Gaussian count, refine steps), read as the core's EncodeSettings; and what the dialogs
-show before an encode starts: the Gaussians per frame at each source's own resolution (they scale
-with it), the frames, and an estimate of time and size (encode.estimate).
+"""The encode options a user chooses and what they mean, in one place: the Model (the conv network, the
+default, or the paper's HyperGS transformer, offered when its weights are there: runtime.model_weights),
+a Quality preset (Draft / Standard / High: the core's encode.QUALITY, a cell size in source pixels and
+refine steps) or Custom values (cell size or Gaussian count, per frame or, for the transformer, per
+tile; refine steps), and the transformer's patch grid, read as the core's EncodeSettings; and what the
+dialogs show before an encode starts: the Gaussians per frame at each source's own resolution (they
+scale with it; the transformer's: tiles x Gaussians per tile), the frames, and an estimate of time and
+size (encode.estimate).
 
 The options are properties of the operators and of a clip's settings (EncodeOptions, a mixin), drawn
 by `draw` in the import file browser's side panel, the Sequencer's Convert dialog and the clip panel.
@@ -12,12 +15,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from bpy.props import EnumProperty, FloatProperty, IntProperty
+from bpy.props import EnumProperty, FloatProperty, IntProperty, IntVectorProperty
 
 from ..hypergs_blender.encode import MAX_CELL, QUALITY, EncodeSettings, Estimate, Layout, estimate
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io.frames import probe
-from ..hypergs_blender.runtime import Runtime, make_encoder
+from ..hypergs_blender.runtime import Runtime, make_encoder, transformer_available
 from .jobs import Source
 
 CUSTOM = "CUSTOM"
@@ -31,6 +34,12 @@ def _preset_item(key: str, name: str) -> tuple[str, str, str]:
 
 class EncodeOptions:
     """The encode options (a mixin for operators and the clip settings)."""
+    model: EnumProperty(
+        name="Model", default="CONV",
+        items=[("CONV", "Conv", "The convolutional network (the default): one Gaussian per cell at a density"),
+               ("TRANSFORMER", "HyperGS Transformer", "The HyperGS paper's transformer: the frame as a patch grid "
+                                                     "of tiles, a Gaussian count per tile (its weights: bundled, "
+                                                     "or the folder set in the add-on's preferences)")])
     quality: EnumProperty(
         name="Quality", default="STANDARD",
         items=[_preset_item("draft", "Draft"), _preset_item("standard", "Standard"), _preset_item("high", "High"),
@@ -40,25 +49,32 @@ class EncodeOptions:
                              description="Source pixels per Gaussian along each side (smaller: more Gaussians, "
                                          "sharper, slower); the count follows the video's resolution")
     gaussian_count: IntProperty(name="Gaussians", default=0, min=0, max=10_000_000,
-                                description="Gaussians per frame instead of a cell size (0: from the cell size)")
+                                description="Gaussians per frame (the transformer: per tile) instead of a cell size "
+                                            "(0: from the cell size)")
+    patch_grid: IntVectorProperty(name="Patch Grid", size=2, default=(0, 0), min=0, max=64,
+                                  description="The transformer's tiles, columns and rows (0: tiles of its canvas "
+                                              "size at the source's resolution)")
     refine_steps: IntProperty(name="Refine Steps", default=0, min=0, max=1000,
                               description="Steps of per-frame fitting after the network (sharper, much slower; "
                                           "needs PyTorch)")
 
 
 def settings(options) -> EncodeSettings:
-    """The options as the encode's settings (a preset's, or the custom ones), as this Blender can run them."""
+    """The options as the encode's settings (a preset's, or the custom ones; the model, and the
+    transformer's patch grid), as this Blender can run them."""
+    model = options.model.lower()
+    grid = tuple(options.patch_grid) if model == "transformer" and min(options.patch_grid) > 0 else None
     if options.quality == CUSTOM:
         chosen = EncodeSettings.choose(gaussians=options.gaussian_count or None, cell=options.cell_size,
-                                       refine=options.refine_steps)
+                                       refine=options.refine_steps, grid=grid, model=model)
     else:
-        chosen = EncodeSettings.choose(options.quality.lower())
+        chosen = EncodeSettings.choose(options.quality.lower(), grid=grid, model=model)
     return chosen.runnable()
 
 
 def copy_options(source, target) -> None:
     """Copy the encode options (e.g. an operator's into the clip's settings, for Re-encode)."""
-    for name in ("quality", "cell_size", "gaussian_count", "refine_steps"):
+    for name in ("model", "quality", "cell_size", "gaussian_count", "refine_steps", "patch_grid"):
         setattr(target, name, getattr(source, name))
 
 
@@ -92,7 +108,7 @@ class Plan:
 
 def plan(sources: list[Source], chosen: EncodeSettings, runtime: Runtime) -> list[Plan]:
     """The layout and estimate of each source. Raises HyperGSError (a source or the encoder's problem)."""
-    encoder = make_encoder(runtime)  # loaded once; the encode uses it too
+    encoder = make_encoder(runtime, chosen.model)  # loaded once; the encode uses it too
     plans = []
     for source in sources:
         info = source_info(source.path)
@@ -110,12 +126,17 @@ def draw(layout, options, sources, runtime: Runtime) -> None:
     layout.use_property_split = True
     layout.use_property_decorate = False
     col = layout.column()
+    transformer = options.model == "TRANSFORMER"
+    if transformer or transformer_available(runtime):  # offered where its weights are (else: the conv network)
+        col.prop(options, "model")
     col.row().prop(options, "quality", expand=True)
     if options.quality == CUSTOM:
         sub = col.column(align=True)
         sub.prop(options, "cell_size")
-        sub.prop(options, "gaussian_count")
+        sub.prop(options, "gaussian_count", text="Gaussians per Tile" if transformer else "Gaussians")
         sub.prop(options, "refine_steps")
+    if transformer:
+        col.prop(options, "patch_grid")
     box = layout.box().column(align=True)
     chosen = settings(options)
     try:
@@ -133,8 +154,8 @@ def summary(plans: list[Plan], chosen: EncodeSettings) -> list[tuple[str, str]]:
     lines = []
     for p in plans[:3]:
         name = f"{p.source.name}: " if len(plans) > 1 else ""
-        lines.append((f"{name}{p.layout.count:,} Gaussians per frame ({p.layout.cols} x {p.layout.rows} cells of "
-                      f"{p.layout.cell:.1f} px at {p.width} x {p.height})", "MOD_PARTICLES"))
+        lines.append((f"{name}{p.layout.count:,} Gaussians per frame ({_where(p.layout)} at {p.width} x {p.height})",
+                      "MOD_PARTICLES"))
     if len(plans) > 3:
         lines.append((f"and {len(plans) - 3} more clips", "BLANK1"))
     frames = sum(p.frames for p in plans)
@@ -147,6 +168,14 @@ def summary(plans: list[Plan], chosen: EncodeSettings) -> list[tuple[str, str]]:
     for note in [p.layout.note for p in plans if p.layout.note][:1] + ([chosen.note] if chosen.note else []):
         lines.append((note, "INFO"))
     return lines
+
+
+def _where(layout: Layout) -> str:
+    """Where a layout puts the Gaussians: cells, or the transformer's tiles (encode.TileLayout)."""
+    if hasattr(layout, "tiles"):
+        columns, rows = layout.tiles
+        return f"{columns} x {rows} tiles of {layout.per_tile:,}, cells of {layout.cell:.1f} px"
+    return f"{layout.cols} x {layout.rows} cells of {layout.cell:.1f} px"
 
 
 def _duration(seconds: float) -> str:

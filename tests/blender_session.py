@@ -32,8 +32,8 @@ def run_blender_session(script, work: Path, encoder: str, timeout: float, env: d
     render reports there)."""
     from build_extension import build_zip
     zip_path = build_zip(work / "dist")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tools")]),
-               HYPERGS_ENCODER=os.environ.get("HYPERGS_ENCODER", encoder), **(env or {}))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tools")]),
+           "HYPERGS_ENCODER": os.environ.get("HYPERGS_ENCODER", encoder), **(env or {})}  # `env` wins
     out = work / "session.json"
     python = os.environ.get("HYPERGS_BLENDER_PYTHON", sys.executable)  # e.g. a venv with bpy 4.2
     proc = subprocess.run([python, str(script), str(zip_path), str(work), str(out)], env=env,

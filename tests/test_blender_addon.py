@@ -77,7 +77,9 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     # Asked for CUDA (absent from the bundled onnxruntime here): the CPU runs it, with the threads asked for.
     assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
     # (The policy itself, providers_for, is tested without Blender: test_runtime.py.)
-    assert r["preferences_drawn"]
+    assert ["prop", "transformer_weights", None] in r["preferences_drawn"]
+    # No transformer bundled and none set: the preferences say how to get one (test_blender_transformer.py sets one).
+    assert any("bundles none; train and export one" in c[1] for c in r["preferences_drawn"] if c[0] == "label")
 
 
 def test_import_dialog_gaussians_follow_the_resolution(session):
@@ -289,7 +291,8 @@ def run_session(zip_path, work, out_path):
             prefs.device, prefs.threads = defaults
             encoder_module._cache.clear()
         layout = Recorder()
-        type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads), bpy.context)
+        type(prefs).draw(types_namespace(layout=layout, device=prefs.device, threads=prefs.threads,
+                                         transformer_weights=prefs.transformer_weights), bpy.context)
         return dict(defaults=defaults, available=encoder_module.available_providers(), asked_cuda=asked,
                     preferences_drawn=[list(c) for c in layout.calls])
 

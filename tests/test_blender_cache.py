@@ -163,7 +163,6 @@ def run_session(zip_path, work, out_path):
     bpy, record, results = start_session(work, out_path)
     addon = install_extension(bpy, zip_path)
     cache = addon_module(addon, "com.cache")
-    frames = addon_module(addon, "com.frames")
     from hypergs_blender.encode import EncodeSettings, encode_video
     from hypergs_blender.io.hgs import HgsReader
     from hypergs_blender.metrics import psnr

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 import pytest
-from blender_headless import SAMPLE, install_extension, read_png, render_png
+from blender_headless import SAMPLE, install_extension, read_png, render_png, set_strip_range
 from blender_session import (Recorder, addon_module, attempt_unchanged, diff, files_under, operator_defaults,
                              run_blender_session, session_main, snapshot, start_session, step, types_namespace)
 
@@ -148,7 +148,7 @@ def run_session(zip_path, work, out_path):
     for name, spec in STRIPS.items():
         strip = strips.new_movie(name=name, filepath=str(SAMPLE), channel=spec["channel"],
                                  frame_start=spec["content"])
-        set_range(strip, spec["first"], spec["end"])
+        set_strip_range(strip, spec["first"], spec["end"])
         made[name] = strip
     # A placement the scene strip must copy (an origin alone leaves the picture as it is at scale 1).
     made["a"].transform.origin = (0.25, 0.75)
@@ -291,18 +291,10 @@ def run_session(zip_path, work, out_path):
     @record("cut")
     def _():
         scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("a"))
-        set_range(scene_strip, 4, 13)  # the user trims the converted clip: frame 4 still shows source frame 3
+        set_strip_range(scene_strip, 4, 13)  # the user trims the converted clip: frame 4 still shows source frame 3
         return compare(f12(4, "cut_4"), "a", 3)
 
     return results
-
-
-def set_range(strip, first, end):
-    """Move a strip's handles: it shows timeline frames [first, end)."""
-    if hasattr(strip, "left_handle"):  # Blender 5.2+
-        strip.left_handle, strip.right_handle = first, end
-    else:
-        strip.frame_final_start, strip.frame_final_end = first, end
 
 
 if __name__ == "__main__":

@@ -13,8 +13,6 @@ import pytest
 
 from hypergs_blender.commands import cli, options
 
-UNCHECKED = {"grid"}  # --grid goes away with the density encode (--cell): it gets no checks of its own
-
 
 def leaf_commands(parser=None, path=()) -> dict[tuple[str, ...], argparse.ArgumentParser]:
     """{("bench", "codec"): its parser, ...} for every (sub)command without subcommands."""
@@ -58,7 +56,8 @@ def good_value(action, tmp_path) -> str:
         return str(max(kind.low, 1))
     if isinstance(kind, options.Real):
         return str(min(kind.high, 1.0) / 2 if kind.high < float("inf") else 1.0)
-    return {options.Resolution: "64x48", options.FrameSize: "crop64", options.GaussianRange: "16:64"}.get(
+    return {options.Resolution: "64x48", options.FrameSize: "crop64", options.GaussianRange: "16:64",
+            options.PatchGrid: "2"}.get(
         type(kind), "x")
 
 
@@ -101,7 +100,7 @@ def test_the_walk_sees_every_command():
 @pytest.mark.parametrize("path", sorted(COMMANDS), ids=" ".join)
 def test_every_argument_is_checked(path):
     unchecked = [argparse._get_action_name(a) for a in value_arguments(COMMANDS[path])
-                 if not (isinstance(a.type, options.ArgType) or a.choices is not None or a.dest in UNCHECKED)]
+                 if not (isinstance(a.type, options.ArgType) or a.choices is not None)]
     assert not unchecked, f"give these a type from commands/options.py: {unchecked}"
 
 
@@ -111,8 +110,6 @@ def test_bad_values_are_one_line_and_leave_nothing(path, tmp_path, capsys, monke
     parser = COMMANDS[path]
     problems = []
     for action in value_arguments(parser):
-        if action.dest in UNCHECKED:
-            continue
         name = argparse._get_action_name(action)
         for value in bad_values(action):
             argv = command_line(path, parser, action, value, tmp_path)

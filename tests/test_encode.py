@@ -183,7 +183,9 @@ def test_plan_measures_the_psnr_of_spread_frames(moving_video):
     ([], EncodeSettings(cell=6.0)), (["--quality", "draft"], EncodeSettings(cell=8.0)),
     (["--quality", "high"], EncodeSettings(cell=4.0, refine=30)),
     (["--quality", "high", "--refine", "2"], EncodeSettings(cell=4.0, refine=2)),
-    (["--gaussians", "300"], EncodeSettings(gaussians=300)), (["--cell", "5", "--refine", "1"], EncodeSettings(cell=5.0, refine=1))])
+    (["--gaussians", "300"], EncodeSettings(gaussians=300)), (["--cell", "5", "--refine", "1"], EncodeSettings(cell=5.0, refine=1)),
+    (["--gaussians", "300", "--grid", "3x2"], EncodeSettings(gaussians=300, grid=(3, 2))),
+    (["--quality", "draft", "--grid", "2"], EncodeSettings(cell=8.0, grid=(2, 2)))])
 def test_encode_command_reads_quality_count_or_cell(argv, expected, tmp_path, moving_video):
     from hypergs_blender.commands import cli, options
     args = cli.build_parser().parse_args(["encode", str(moving_video), "-o", str(tmp_path / "c.hgs"), *argv])
@@ -198,3 +200,18 @@ def test_quality_excludes_a_count_or_a_cell(moving_video, tmp_path, capsys):
     main(["encode", str(moving_video), "-o", str(tmp_path / "draft.npz"), "--encoder", "floor", "--quality", "draft"])
     layout = plan_layout(64, 48, 4, cell=QUALITY["draft"]["cell"])
     assert load_clip(tmp_path / "draft.npz").grid == (layout.cols, layout.rows)
+
+
+def test_the_transformer_estimate_counts_its_windows():
+    """The transformer pays per canvas-sized window (encode.TileLayout.windows), each for its k x k
+    Gaussians and their pairs: more windows or more Gaussians per window cost more, as measured."""
+    from hypergs_blender.encode import ENCODE_COSTS, TileLayout, estimate
+    cost = ENCODE_COSTS["transformer"]
+    one = TileLayout(256, 256, 32, 32, 4.0, tiles=(1, 1), canvas=128, windows=1)
+    nine = TileLayout(256, 256, 64, 64, 4.0, tiles=(2, 2), canvas=128, windows=9)
+    per_window = (cost.predict_s_per_window + cost.predict_s_per_gaussian * 1024 + cost.predict_s_per_pair * 1024 ** 2)
+    fixed = cost.decode_s_per_pixel * 256 * 256
+    assert estimate(one, 1, encoder="transformer-onnx").seconds == pytest.approx(
+        fixed + cost.write_s_per_gaussian * 1024 + per_window)
+    assert estimate(nine, 1, encoder="transformer-torch").seconds == pytest.approx(
+        fixed + cost.write_s_per_gaussian * 4096 + 9 * per_window)

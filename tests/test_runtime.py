@@ -55,3 +55,36 @@ def test_the_bundled_network_runs_where_asked_and_is_loaded_once(monkeypatch, se
     assert make_encoder(asked) is encoder and len(session_cache) == 1
     other = make_encoder(Runtime(CPU, 2))  # another runtime: loaded again, one network in memory
     assert other is not encoder and len(session_cache) == 1
+
+
+@pytest.fixture(scope="module")
+def transformer_folder(tmp_path_factory):
+    from tiny_transformer import export_tiny_transformer
+    return export_tiny_transformer(tmp_path_factory.mktemp("transformer")).parent
+
+
+def test_the_transformer_loads_from_the_folder_set_and_only_from_a_transformer(transformer_folder, tmp_path,
+                                                                               monkeypatch, session_cache):
+    monkeypatch.setattr(optional, "torch_available", lambda: False)  # as in Blender's Python: onnxruntime
+    monkeypatch.delenv("HYPERGS_ENCODER", raising=False)
+    monkeypatch.setattr(runtime, "WEIGHTS_DIR", tmp_path / "bundles_none")
+    assert not runtime.transformer_available(Runtime())
+    with pytest.raises(HyperGSError, match="bundles none; train and export one"):
+        make_encoder(Runtime(), "transformer")
+    chosen = Runtime(CPU, 1, str(transformer_folder))
+    assert runtime.transformer_available(chosen)
+    assert runtime.model_weights(chosen, "transformer") == transformer_folder / "hypergs_transformer.json"
+    encoder = make_encoder(chosen, "transformer")
+    assert encoder.name == "transformer-onnx" and describe_encoder(encoder, chosen) == "transformer-onnx on CPU (1 thread)"
+    assert make_encoder(chosen, "transformer") is encoder and len(session_cache) == 1
+    assert make_encoder(chosen, "conv").name == "network-onnx" and len(session_cache) == 1  # one network in memory
+    from hypergs_blender.network import WEIGHTS_DIR
+    conv = Runtime(transformer_weights=str(WEIGHTS_DIR))  # the bundled conv network's folder
+    assert not runtime.transformer_available(conv)
+    with pytest.raises(HyperGSError, match="holds the conv network's weights, not a transformer's"):
+        make_encoder(conv, "transformer")
+    (tmp_path / "broken.json").write_text("{not json")
+    with pytest.raises(HyperGSError, match="not a model's card"):
+        runtime.model_weights(Runtime(transformer_weights=str(tmp_path / "broken.json")), "transformer")
+    with pytest.raises(HyperGSError, match="unknown model 'vit'"):
+        make_encoder(chosen, "vit")

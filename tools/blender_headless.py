@@ -123,6 +123,14 @@ def in_gpu_context(bpy, work) -> dict:
     return found
 
 
+def set_strip_range(strip, first: int, end: int) -> None:
+    """Move a strip's handles: it shows timeline frames [first, end)."""
+    if hasattr(strip, "left_handle"):  # Blender 5.2+
+        strip.left_handle, strip.right_handle = first, end
+    else:
+        strip.frame_final_start, strip.frame_final_end = first, end
+
+
 def render_png(bpy, scene, frame: int, path) -> float:
     """F12 of one frame, saved as an 8-bit PNG with the scene's colour management; returns seconds."""
     scene.frame_set(frame)

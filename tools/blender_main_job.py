@@ -1,12 +1,16 @@
 """The main job, headless: build the extension, install it into a throw-away Blender user directory,
 add the bundled sample video as a sequencer strip, convert it with `bpy.ops.hypergs.convert_strip()`,
 render the Sequencer's output (the scene strip the conversion adds) with F12 to PNG and print its PSNR
-against the source frames.
+against the source frames. With --transformer WEIGHTS (a folder as `hypergs export` writes it) the job
+also converts a few frames of it with the HyperGS transformer (Model in the Convert dialog, its weights
+set in the add-on's preferences), N Gaussians per tile on a patch grid, and renders one with F12.
 
     .venv/bin/python tools/blender_main_job.py [--video PATH] [--size WxH] [--frames 1,20,40]
                                                [--quality draft|standard|high] [--gaussians N]
                                                [--encoder floor|bundled]
                                                [--zip EXTENSION.zip] [--json FIGURES.json]
+                                               [--transformer WEIGHTS [--transformer-gaussians N]
+                                                [--transformer-grid CxR]]
 
 Runs with the `bpy` wheel of the venv (no Blender install needed). PNGs go to runs/main_job/.
 tools/blender_matrix.py runs it in every supported Blender.
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import shutil
@@ -26,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from blender_headless import (ROOT, SAMPLE, add_movie_strip, addon_module, exit_session, install_extension,
-                              read_png, render_png, source_frames, start_blender)
+                              read_png, render_png, set_strip_range, source_frames, start_blender)
 from build_extension import build_zip
 from hypergs_blender.encode import QUALITY
 from hypergs_blender.metrics import psnr
@@ -34,6 +39,7 @@ from hypergs_blender.metrics import psnr
 # The encoder the main job uses unless --encoder says otherwise: the bundled network ("floor": the
 # no-learning grid floor, for comparison).
 DEFAULT_ENCODER = "bundled"
+TRANSFORMER_FRAMES = 6  # converted with the transformer: a clip of 4 frames and one padded
 
 
 def main_job(argv=None) -> int:
@@ -51,6 +57,9 @@ def main_job(argv=None) -> int:
     parser.add_argument("--zip", help="install this extension zip instead of building one")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     parser.add_argument("--out", default=str(ROOT / "runs" / "main_job"))
+    parser.add_argument("--transformer", help="also convert a few frames with the transformer of this weights folder")
+    parser.add_argument("--transformer-gaussians", type=int, default=64, help="its Gaussians per tile")
+    parser.add_argument("--transformer-grid", default="2x1", help="its patch grid, COLSxROWS")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -77,6 +86,8 @@ def main_job(argv=None) -> int:
             print(f"installed into {user_dir} (Blender {bpy.app.version_string}, Python {report['python']}), "
                   f"encoder: {args.encoder}")
             _main_job_scene(bpy, addon, args, video, out, report)
+            if args.transformer:
+                _transformer_conversion(bpy, addon, args, video, out, report)
         here = str(Path(addon.__file__).parent)
         report["deprecations"] = sorted({f"{Path(w.filename).relative_to(here)}:{w.lineno}: {w.message}"
                                          for w in caught if issubclass(w.category, DeprecationWarning)
@@ -151,6 +162,47 @@ def _main_job_scene(bpy, addon, args, video: Path, out: Path, report: dict) -> N
                   cached_psnr=values[len(frames) // 2])
     print(f"linked to {out / 'clip.hgs'}: frame {middle} PSNR {report['linked_psnr']:.2f} dB "
           f"(from its frame cache {report['cached_psnr']:.2f} dB)")
+
+
+def _transformer_conversion(bpy, addon, args, video: Path, out: Path, report: dict) -> None:
+    """A few frames of the video as a movie strip above the others, converted with Model: HyperGS
+    Transformer (weights from the preferences), N per tile on the patch grid; F12 of one frame against
+    the source. report["transformer"]: the Gaussians per frame against tiles x N (N rounded to a
+    square: the tile's k x k lattice), both PSNRs."""
+    compat = addon_module(addon, "com.compat")
+    preferences = addon_module(addon, "ops.preferences")
+    bpy.context.preferences.addons[preferences.ADDON].preferences.transformer_weights = str(Path(args.transformer))
+    scene = bpy.context.scene
+    editor = scene.sequence_editor
+    channel = max(s.channel for s in compat.all_strips(editor)) + 1
+    strip = add_movie_strip(bpy, scene, video, name=f"{video.stem}_transformer")
+    strip.channel = channel
+    first = compat.strip_range(strip)[0]
+    set_strip_range(strip, first, first + TRANSFORMER_FRAMES)
+    for s in compat.all_strips(editor):
+        s.select = s == strip
+    editor.active_strip = strip
+    columns, rows = (int(v) for v in args.transformer_grid.lower().split("x"))
+    t = time.perf_counter()
+    bpy.ops.hypergs.convert_strip(model="TRANSFORMER", quality="CUSTOM", gaussian_count=args.transformer_gaussians,
+                                  patch_grid=(columns, rows))
+    convert_s = time.perf_counter() - t
+    scene_strip = editor.active_strip
+    obj = next(o for o in scene_strip.scene.objects if o.hypergs.is_clip)
+    s = obj.hypergs
+    frame = first + TRANSFORMER_FRAMES // 2
+    png = out / f"transformer_{frame:04d}.png"
+    render_png(bpy, scene, frame, png)
+    offset = s.source_start - first
+    truth = source_frames(video, [frame + offset], scene.render.resolution_x, scene.render.resolution_y)
+    f12 = float(psnr(read_png(bpy, png), truth[frame + offset]))
+    report["transformer"] = dict(frames=s.num_frames, gaussians=s.gaussians_per_frame,
+                                 expected=columns * rows * round(math.sqrt(args.transformer_gaussians)) ** 2,
+                                 encoder=s.encoder,  # expected: a k x k lattice per tile, k = round(sqrt(N))
+                                 encode_psnr=s.psnr, psnr=f12, convert_s=convert_s, on_top=scene_strip.channel > channel)
+    print(f"transformer: {s.num_frames} frames x {s.gaussians_per_frame} Gaussians ({columns}x{rows} tiles x "
+          f"{args.transformer_gaussians}) with {s.encoder} in {convert_s:.1f} s (encode-time PSNR {s.psnr:.2f} dB); "
+          f"F12 of frame {frame}: PSNR {f12:.2f} dB")
 
 
 if __name__ == "__main__":

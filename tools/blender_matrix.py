@@ -1,7 +1,9 @@
 """The Blender matrix: the extension zip is built once, then installed and run in every Blender it
 supports, each the `bpy` wheel of that version in its own venv. In each, the main job
 (tools/blender_main_job.py) converts the bundled sample as a movie strip and renders the Sequencer's
-output with F12: the scene strip the conversion adds, rendered by HyperGS, against the source frames.
+output with F12: the scene strip the conversion adds, rendered by HyperGS, against the source frames;
+then a few frames converted with the HyperGS transformer (Model in the Convert dialog; the weights: a
+tiny untrained transformer exported here, tools/tiny_transformer.py, or --transformer WEIGHTS).
 
     .venv/bin/python tools/blender_matrix.py [--versions 4.2,5.0,5.2] [--encoder bundled|floor]
 
@@ -16,7 +18,8 @@ A version fails when its session fails, its mean F12 PSNR is below MIN_PSNR or m
 PSNR_MARGIN below the PSNR the encoder measured itself (the Sequencer must show exactly the clip),
 the clip exported to a .hgs file and linked to it renders worse than LINKED_MARGIN below the clip read
 from its frame cache (this checks the bundled .hgs codec wheels too), or the extension's code triggers a
-DeprecationWarning there. Exit status 1 if any version fails.
+DeprecationWarning there, or the transformer's conversion does not give tiles x N Gaussians per frame
+or its F12 is more than PSNR_MARGIN below what it measured. Exit status 1 if any version fails.
 """
 from __future__ import annotations
 
@@ -81,7 +84,7 @@ def ensure_venv(series: str, root: Path = MATRIX_DIR) -> tuple[Path, float]:
     return python, time.perf_counter() - started
 
 
-def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Path) -> dict:
+def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Path, transformer: Path) -> dict:
     """The main job in one Blender; its figures, with `failures` (empty when it passed)."""
     out.mkdir(parents=True, exist_ok=True)
     figures, log = out / "figures.json", out / "log.txt"
@@ -91,7 +94,8 @@ def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Pat
     with open(log, "w") as f:
         try:
             proc = subprocess.run([str(python), str(ROOT / "tools" / "blender_main_job.py"), "--zip", str(zip_path),
-                                   "--encoder", encoder, "--json", str(figures), "--out", str(out)],
+                                   "--encoder", encoder, "--json", str(figures), "--out", str(out),
+                                   "--transformer", str(transformer)],
                                   env=env, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, timeout=SESSION_TIMEOUT)
             rc = proc.returncode
         except subprocess.TimeoutExpired:
@@ -115,6 +119,11 @@ def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Pat
         strip = report["scene_strip"]
         if strip["range"] != strip["movie_range"] or not strip["movie_muted"] or strip["engine"] != "HYPERGS":
             failures.append(f"the scene strip does not replace the movie strip: {strip}")
+    t = report.get("transformer")
+    if t is None:
+        failures.append(f"no transformer conversion (see {log})")
+    elif t["gaussians"] != t["expected"] or not t["on_top"] or t["psnr"] < t["encode_psnr"] - PSNR_MARGIN:
+        failures.append(f"the transformer's conversion: {t}")
     failures += [f"deprecated: {d}" for d in report.get("deprecations", [])]
     report["failures"] = failures
     return report
@@ -126,6 +135,8 @@ def main(argv=None) -> int:
     parser.add_argument("--encoder", choices=("bundled", "floor"), default=DEFAULT_ENCODER)
     parser.add_argument("--venvs", default=str(MATRIX_DIR), help="where the bpy venvs live")
     parser.add_argument("--out", default=str(OUT_DIR))
+    parser.add_argument("--transformer", default=None,
+                        help="transformer weights folder to convert with (default: a tiny untrained one made here)")
     args = parser.parse_args(argv)
     series_list = [v.strip() for v in args.versions.split(",") if v.strip()]
     unknown = [v for v in series_list if v not in VERSIONS]
@@ -134,10 +145,15 @@ def main(argv=None) -> int:
     started = time.perf_counter()
     out = Path(args.out)
     zip_path = build_zip(out / "dist")
+    if args.transformer:
+        transformer = Path(args.transformer)
+    else:
+        from tiny_transformer import export_tiny_transformer
+        transformer = export_tiny_transformer(out / "transformer_weights").parent
     rows, summary = [], {"build_s": time.perf_counter() - started}
     for series in series_list:
         python, venv_s = ensure_venv(series, Path(args.venvs))
-        report = run_series(series, python, zip_path, args.encoder, out / series)
+        report = run_series(series, python, zip_path, args.encoder, out / series, transformer)
         report["venv_s"] = venv_s
         summary[series] = report
         rows.append((series, report))
@@ -146,7 +162,8 @@ def main(argv=None) -> int:
               f"venv {venv_s:5.0f} s  session {report['session_s']:5.1f} s  "
               f"convert {report.get('convert_s', float('nan')):5.1f} s  "
               f"F12 {max(report.get('render_s', [float('nan')])):5.2f} s  "
-              f"PSNR {report.get('mean_psnr', float('nan')):5.2f} dB  {status}", flush=True)
+              f"PSNR {report.get('mean_psnr', float('nan')):5.2f} dB  "
+              f"transformer {report.get('transformer', {}).get('psnr', float('nan')):5.2f} dB  {status}", flush=True)
     summary["total_s"] = time.perf_counter() - started
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     failed = [series for series, report in rows if report["failures"]]

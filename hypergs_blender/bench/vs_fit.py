@@ -105,7 +105,7 @@ def warm_up(frames: np.ndarray, encoder, device: str) -> None:
     render(params, 32, 32, device)
 
 
-def _feedforward(frames: np.ndarray, encoder, layout, device: str):
+def timed_encode(frames: np.ndarray, encoder, layout, device: str):
     """(seconds per frame, params) of encode_frames: the median of 3 runs when one takes under 2 s
     (short timings are noisy), else the one run."""
     def run():
@@ -162,7 +162,7 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
                 label = f"{Path(path).name} {w}x{h} N={n}"
                 say(progress, f"{label}: feedforward")
                 encode_frames(clip[:1], encoder, layout)  # warm-up at this N (shapes)
-                ff_seconds, params = _feedforward(clip, encoder, layout, device)
+                ff_seconds, params = timed_encode(clip, encoder, layout, device)
                 ff_psnr = psnr_of(render(params, w, h, device), clip)
                 row = {"n_requested": n_asked, "n": n, "cells": [layout.cols, layout.rows],
                        "feedforward": {"seconds": ff_seconds, "psnr": float(np.mean(ff_psnr)),

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
 from .. import limits
 from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES, FIT_INITS
-from ..network import BACKENDS
+from ..network import BACKENDS, DEFAULT_NAMES, WEIGHTS_DIR
 from . import options
 
 
@@ -25,8 +26,7 @@ def _bench_options(parser, default: str = "network") -> None:
     parser.add_argument("--encoder", default=default, choices=["network", "floor"],
                         help="the bundled network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--weights", default=None, type=options.input_folder,
-                        help="folder with <name>.json/.safetensors/.onnx")
+    options.add_model_arguments(parser)
     parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
                         help="also write the JSON report here")
@@ -58,14 +58,15 @@ def _encode(parser):
     parser.add_argument("--repeats", type=options.positive_int, default=3)
     parser.add_argument("--threads", type=options.non_negative_int, default=0,
                         help="torch and onnxruntime CPU threads (0: one per core)")
-    parser.add_argument("--weights", default=None, type=options.input_folder)
+    options.add_model_arguments(parser)
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
                         help="also write the JSON report here")
 
     def run(args):
         from ..bench.encode import bench_encode
         return write_report(bench_encode(args.backends, args.gaussians, args.presets, args.sizes, args.frames,
-                                         args.large_frames, args.repeats, args.weights, args.threads), args.output)
+                                         args.large_frames, args.repeats, options.weights_from_args(args),
+                                         args.threads), args.output)
     return run
 
 
@@ -89,7 +90,8 @@ def _codec(parser):
     def run(args) -> dict:
         from ..bench.codec import bench_codec, format_codec_table
         from ..network import resolve_encoder
-        encoder = resolve_encoder(args.encoder, args.backend, args.weights, None if args.device == "auto" else args.device)
+        encoder = resolve_encoder(args.encoder, args.backend, options.weights_from_args(args),
+                                  None if args.device == "auto" else args.device)
         report = bench_codec(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames, encoder,
                              args.codec, args.preset, args.group_size, args.position_bits or None, progress=_progress)
         report["table"] = format_codec_table(report)
@@ -121,7 +123,8 @@ def _vs_fit(parser):
     def run(args) -> dict:
         from ..bench.vs_fit import bench_vs_fit
         return write_report(bench_vs_fit(args.videos, args.gaussians, args.refine_steps, args.fit_iters, args.sizes,
-                                   args.frames, args.start, args.encoder, args.backend, args.weights, args.device,
+                                   args.frames, args.start, args.encoder, args.backend, options.weights_from_args(args),
+                                   args.device,
                                    args.fit_budget or None, args.fit_all, args.fit_inits, progress=_progress),
                             args.output)
     return run
@@ -149,7 +152,8 @@ def _vs_x265(parser):
     def run(args) -> dict:
         from ..bench.vs_x265 import bench_vs_x265
         return write_report(bench_vs_x265(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames or None,
-                                    args.start, args.refine_steps, args.encoder, args.backend, args.weights,
+                                    args.start, args.refine_steps, args.encoder, args.backend,
+                                    options.weights_from_args(args),
                                     args.device, args.codec, args.preset, args.group_size,
                                     position_bits=args.position_bits or None, progress=_progress), args.output)
     return run
@@ -182,7 +186,8 @@ def _scale(parser):
         from ..bench.scale import bench_scale
         return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.cell, args.chunk_frames,
                                   args.refine, args.bits, rw, rh, args.render_frames or None, 8, args.encoder,
-                                  args.backend, args.weights, args.device, args.keep, args.also_encode_video,
+                                  args.backend, options.weights_from_args(args), args.device, args.keep,
+                                  args.also_encode_video,
                                   progress=_progress), args.output)
     return run
 
@@ -201,7 +206,8 @@ def _picture(parser):
         from ..bench.picture import bench_presets, save_picture
         from ..network import resolve_encoder
         width, height = args.size
-        encoder = resolve_encoder(args.encoder, args.backend, args.weights, None if args.device == "auto" else args.device)
+        encoder = resolve_encoder(args.encoder, args.backend, options.weights_from_args(args),
+                                  None if args.device == "auto" else args.device)
         report = bench_presets(args.video, width=width, height=height, frames=args.frames, encoder=encoder,
                                crop=args.crop)
         if args.picture:
@@ -229,6 +235,54 @@ def _splat(parser):
             run_tool("bench_splat.py", "--size", "x".join(map(str, args.size)), "--gaussians", args.gaussians,
                      "--repeats", args.repeats, "--report", report)
             return write_report(json.loads(report.read_text()), args.output)
+    return run
+
+
+def _designs(parser):
+    from ..bench.designs import DEFAULT_GRIDS, DEFAULT_REFINE_STEPS
+    parser.add_argument("videos", nargs="+", type=options.input_video,
+                        help="videos; each folder is one set of the table (the dev clips, the held-out pans)")
+    parser.add_argument("--conv", default=None, type=options.model_weights,
+                        help="the conv network: a weights folder or a model's card (default: the bundled one)")
+    parser.add_argument("--transformer", default=None, type=options.model_weights,
+                        help="the transformer: a weights folder or a model's card (default: the bundled one)")
+    parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS),
+                        help="Gaussians per frame")
+    parser.add_argument("--grids", type=options.Integer(1, high=16), nargs="+", default=list(DEFAULT_GRIDS),
+                        help="the transformer's patch grids (G x G tiles, N / G^2 Gaussians per tile)")
+    parser.add_argument("--refine-steps", type=options.positive_int, nargs="+", default=list(DEFAULT_REFINE_STEPS),
+                        help="the conv network's refine ladder (its PSNR at the transformer's encode time)")
+    parser.add_argument("--size", type=options.image_side, default=256, help="square frames (short-side resize + crop)")
+    parser.add_argument("--frames", type=options.Integer(2, limit=limits.FRAMES), default=8,
+                        help="consecutive frames per video")
+    parser.add_argument("--start", type=options.frame_index, default=0)
+    parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
+    parser.add_argument("--threads", type=options.positive_int, default=1, help="CPU threads of either backend")
+    parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
+                        help="also write the JSON report here")
+    parser.add_argument("--table", default=None, type=options.OutputFile((".md",)),
+                        help="also write the Markdown table here (docs/designs.md)")
+
+    def run(args) -> dict:
+        from ..bench.common import resolve_device
+        from ..bench.designs import bench_designs
+        from ..io.files import write_bytes
+        from ..network import read_card, resolve_encoder, weights_name
+        import torch
+        torch.set_num_threads(args.threads)
+        device = resolve_device(args.device)
+        conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads)
+        weights = Path(args.transformer or WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json")
+        transformer = resolve_encoder("network", args.backend, weights, device, threads=args.threads)
+        folder, name = (weights.parent, weights.stem) if weights.suffix == ".json" else (weights, weights_name(weights))
+        report = bench_designs(args.videos, conv, transformer, args.gaussians, args.grids, args.refine_steps,
+                               args.size, args.frames, args.start, device, progress=_progress,
+                               training=read_card(folder, name).get("info"))
+        if args.table:
+            write_bytes(args.table, ("# The paper's transformer against the conv network\n\nWritten by `hypergs bench "
+                                     f"designs` (the command: README).\n\n{report['table']}\n").encode())
+        return write_report(report, args.output)
     return run
 
 
@@ -261,6 +315,8 @@ BENCH_COMMANDS = {
     "picture": ("each quality preset on a video, rendered at the scene's size: PSNR, s/frame, a picture", _picture),
     "splat": ("Blender F12 s/frame, GPU splats vs numpy path (1920x1080, 100k Gaussians), viewport draw time",
               _splat),
+    "designs": ("the paper's transformer vs the conv network at equal N and equal encode time: PSNR, SSIM, Δ-PSNR",
+                _designs),
     "plots": ("plots (docs/*.png) and docs/bench/tables.md from the JSON reports in docs/bench", _plots),
 }
 

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 
+from ..errors import HyperGSError
 from ..evaluate import evaluate_video, warm_up
 from ..io.frames import probe
 from . import options
@@ -37,6 +38,9 @@ def add_commands(subparsers) -> None:
 def run(args) -> None:
     encoder = encoder_from_args(args)
     if args.tile:
+        if not hasattr(encoder, "tile"):
+            raise HyperGSError(f"--tile sets the conv network's tiles; the {encoder.name} encoder tiles by its "
+                               "patch grid (--grid)")
         encoder.tile = args.tile
     warm_up(encoder)
     size = None if (args.native or args.full or args.crop) else args.size
@@ -65,7 +69,7 @@ def run(args) -> None:
                                 still_change=dict(fraction=float(np.mean([t["still_change"]["fraction"] for t in temporal])),
                                                   **{k: float(np.average([c[k] for c in still], weights=weights))
                                                      if still else None for k in ("source", "render")}))
-    report = dict(encoder=encoder.name, density=dict(gaussians=settings.gaussians, cell=settings.cell),
+    report = dict(encoder=encoder.name, density=dict(gaussians=settings.gaussians, cell=settings.cell, grid=settings.grid),
                   refine=settings.refine,
                   frames_from=("native" if args.native else "full" if args.full else f"crop {args.crop}" if args.crop
                                else f"size {args.size}"),

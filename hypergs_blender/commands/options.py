@@ -18,7 +18,7 @@ from .. import limits
 from ..encode import DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
-from ..network import BACKENDS, resolve_encoder
+from ..network import BACKENDS, WEIGHTS_DIR, resolve_encoder
 
 BIGGEST = 1 << 31  # no count or size of ours goes past this: int32 everywhere
 
@@ -180,6 +180,18 @@ class InputFolder(ArgType):
         return text
 
 
+class ModelWeights(ArgType):
+    """A trained model: a weights folder, or a model's card in one (<folder>/<name>.json)."""
+
+    refused = ("", "/nonexistent/folder", "/nonexistent/model.json")
+
+    def __call__(self, text: str) -> str:
+        path = Path(text)
+        if text and (path.is_dir() or (path.suffix == ".json" and path.is_file())):
+            return text
+        raise argparse.ArgumentTypeError(f"{text}: no weights folder or model card (.json)")
+
+
 class OutputFile(ArgType):
     """A file to write: one of `suffixes` (when given) in an existing, writable folder, not a folder."""
 
@@ -266,6 +278,20 @@ class GaussianRange(ArgType):
         return text
 
 
+class PatchGrid(ArgType):
+    """The transformer's patch grid: 'G' (G x G tiles) or 'COLSxROWS' -> (columns, rows)."""
+
+    refused = ("abc", "", "0", "-2", "2x", "0x3", "3x0", "1x2x3", "99999")
+
+    def __call__(self, text: str) -> tuple[int, int]:
+        parts = text.lower().split("x")
+        if len(parts) > 2:
+            raise argparse.ArgumentTypeError(f"{text!r} is not G or COLSxROWS (e.g. 2 or 3x2)")
+        side = Integer(1, high=1024)
+        columns, rows = side(parts[0]), side(parts[-1])
+        return columns, rows
+
+
 def _check_limit(limit: limits.Limit, value) -> None:
     try:
         limit.check(value, "")
@@ -288,11 +314,13 @@ lr_scale = LrScale()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()
+model_weights = ModelWeights()
 output_folder = OutputFolder()
 run_folder = OutputFolder(parents=True)
 resolution = Resolution()
 frame_size = FrameSize()
 gaussian_range = GaussianRange()
+patch_grid = PatchGrid()
 
 
 def command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
@@ -324,28 +352,50 @@ def add_encoder_arguments(parser) -> None:
     parser.add_argument("--encoder", default="network", choices=["network", "floor"],
                         help="the trained network, or the grid floor (no learning)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    add_model_arguments(parser)
+
+
+def add_model_arguments(parser) -> None:
+    """Which trained model: a weights folder (either design; its card says which), and a name."""
     parser.add_argument("--weights", default=None, type=input_folder,
-                        help="folder with <name>.json/.safetensors/.onnx")
+                        help="folder with <name>.json/.safetensors/.onnx (default: the bundled models)")
+    parser.add_argument("--model", default=None, type=name,
+                        help="the model's name in that folder, e.g. hypergs_transformer (default: hypergs, or the "
+                             "folder's only model)")
+
+
+def weights_from_args(args):
+    """What resolve_encoder loads for --weights and --model: the folder, or the named model's card in it
+    (default folder: the bundled models)."""
+    if args.model is None:
+        return args.weights
+    return Path(args.weights or WEIGHTS_DIR) / f"{args.model}.json"
 
 
 def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
     """What the encode is asked for (encode.EncodeSettings): a Quality preset, a Gaussian count per
-    frame or a cell size (one Gaussian per cell x cell source pixels), and refine steps."""
+    frame (the transformer: per tile) or a cell size (one Gaussian per cell x cell source pixels),
+    refine steps, and the transformer's patch grid."""
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--quality", choices=list(QUALITY), default=None,
                        help="a preset: " + ", ".join(f"{name} (cells of {p['cell']:g} px"
                                                       + (f", refined {p['refine']} steps)" if p["refine"] else ")")
                                                       for name, p in QUALITY.items()) + f"; default {default}")
-    group.add_argument("--gaussians", type=gaussian_count, default=None, help="Gaussians per frame (about; on a grid of cells)")
+    group.add_argument("--gaussians", type=gaussian_count, default=None,
+                       help="Gaussians per frame (about; on a grid of cells); the transformer: per patch-grid tile")
     group.add_argument("--cell", type=positive_float, default=None, help="source pixels per Gaussian cell side")
     parser.add_argument("--refine", type=non_negative_int, default=None,
                         help="per-frame refinement steps after the prediction (default: the preset's, else 0)")
+    parser.add_argument("--grid", type=patch_grid, default=None,
+                        help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
+                             "at the frame's resolution)")
     parser.set_defaults(default_quality=default)
 
 
 def settings_from_args(args) -> EncodeSettings:
-    return EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine, default=args.default_quality)
+    return EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine, default=args.default_quality,
+                                 grid=args.grid)
 
 
 def encoder_from_args(args, device=None):
-    return resolve_encoder(args.encoder, args.backend, args.weights, device)
+    return resolve_encoder(args.encoder, args.backend, weights_from_args(args), device)

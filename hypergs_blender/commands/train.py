@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..model import PRESETS
-from ..network import BUNDLED_NAME, WEIGHTS_DIR
+from ..network import BUNDLED_NAME, DEFAULT_NAMES, WEIGHTS_DIR
 from ..training.data import DEFAULT_SPEC
 from ..training.sources import DEFAULT_ROOT
 from . import options
@@ -21,7 +21,7 @@ def add_commands(subparsers) -> None:
     p.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE", type=options.config_item,
                    help="override fields of the preset's config for a new run, e.g. mid=32 stem=128")
     p.add_argument("--init-from", default=None, type=options.InputFile((".safetensors",)),
-                   help="start a new conv run from these weights (.safetensors), e.g. the bundled model's: "
+                   help="start a new run from these weights (.safetensors), e.g. the bundled model's: "
                         "the tensors whose name and shape the network has (new parts keep their initialisation)")
     p.add_argument("--distill", default=None, type=options.InputFile((".safetensors",)),
                    help="train the network (all but its head, kept as --init-from gave it) to reproduce the cell "
@@ -60,10 +60,12 @@ def add_commands(subparsers) -> None:
                    help="threads drawing the next batches (1 on a 2-core machine; ~8 on a GPU machine)")
     p.set_defaults(func=_train_command)
 
-    p = subparsers.add_parser("export", help="training checkpoint -> weights (safetensors + JSON card + ONNX)")
+    p = subparsers.add_parser("export", help="training checkpoint (either design) -> weights (safetensors + JSON "
+                                             "card + ONNX)")
     p.add_argument("run", type=options.input_folder, help="run folder holding checkpoint.pt")
     p.add_argument("--out", default=str(WEIGHTS_DIR), type=options.output_folder)
-    p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
+    p.add_argument("--name", default=None, type=options.name,
+                   help=f"file name (default: {', '.join(f'{v} for the {k} design' for k, v in DEFAULT_NAMES.items())})")
     p.set_defaults(func=_export_command)
 
     p = subparsers.add_parser("export-onnx", help="weights (safetensors) -> <name>.onnx beside them")
@@ -88,8 +90,8 @@ def _train_command(args) -> None:
 
 def _export_command(args) -> None:
     from ..training.export import export_checkpoint
-    info = export_checkpoint(args.run, args.out, args.name)
-    print(f"exported step {info['step']} to {args.out}/{args.name}.{{safetensors,json,onnx}}")
+    name, info = export_checkpoint(args.run, args.out, args.name)
+    print(f"exported step {info['step']} to {args.out}/{name}.{{safetensors,json,onnx}}")
 
 
 def _export_onnx_command(args) -> None:

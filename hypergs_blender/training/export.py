@@ -1,6 +1,8 @@
-"""Training checkpoint of the conv network -> the weights the runtime loads (network.py):
-<name>.safetensors (tensors, for torch), <name>.json (the card: config, the tiling geometry, training
-info) and <name>.onnx (onnxruntime; one graph for every frame size, hence every Gaussian count)."""
+"""Training checkpoint of either design -> the weights the runtime loads (network.py):
+<name>.safetensors (tensors, for torch), <name>.json (the card: which design (`arch`), its config, the
+geometry its encoder needs, training info) and <name>.onnx (onnxruntime, dynamic batch; the conv
+network: one graph for every frame size, hence every Gaussian count; the transformer: anchors and
+cell size are inputs, one graph for every Gaussian count its parametrization allows)."""
 from __future__ import annotations
 
 import json
@@ -8,7 +10,7 @@ from pathlib import Path
 
 from ..errors import HyperGSError, reason
 from ..io.files import AtomicOutput, write_bytes
-from ..network import BUNDLED_NAME
+from ..network import DEFAULT_NAMES, transformer_geometry
 
 # Opset 20 has GELU as one op (Gelu): at 18 the exporter spells it out (Erf, Mul, Add), which onnxruntime
 # does not fuse back, and around each of those ops its NCHWc conv layout is reordered; the one op cuts a
@@ -19,11 +21,21 @@ ONNX_OPSET = 20
 def card_of(model, info: dict | None = None) -> dict:
     from ..model import model_config
     cfg = model.cfg
-    return dict(config=model_config(model), geometry=dict(stride=cfg.stride, multiple=cfg.multiple, reach=cfg.reach),
-                info=info or {})
+    if cfg.arch == "transformer":
+        trained = (info or {}).get("train_args", {}).get("gaussians")
+        geometry = transformer_geometry(cfg, gaussian_range(trained) if trained else None)
+    else:
+        geometry = dict(stride=cfg.stride, multiple=cfg.multiple, reach=cfg.reach)
+    return dict(arch=cfg.arch, config=model_config(model), geometry=geometry, info=info or {})
 
 
-def save_weights(model, directory, name: str = BUNDLED_NAME, info: dict | None = None) -> None:
+def gaussian_range(spec: str) -> tuple[int, int]:
+    """'N' or 'MIN:MAX' (train --gaussians) -> (MIN, MAX)."""
+    low, _, high = spec.partition(":")
+    return int(low), int(high or low)
+
+
+def save_weights(model, directory, name: str, info: dict | None = None) -> None:
     from safetensors.torch import save_file
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -34,16 +46,28 @@ def save_weights(model, directory, name: str = BUNDLED_NAME, info: dict | None =
 
 
 def export_onnx(model, path) -> None:
-    """The conv network with dynamic batch, height and width (multiples of its `multiple`)."""
+    """Either design, with a dynamic batch: the conv network with dynamic height and width (multiples
+    of its `multiple`), the transformer with a dynamic Gaussian count (anchors [batch, N, 2])."""
     import torch
 
-    m = model.cfg.multiple
-    frames = torch.rand(2, 4 * m, 6 * m, 3)
     batch = torch.export.Dim("batch", max=4096)
-    rows, cols = torch.export.Dim("rows", max=8192 // m), torch.export.Dim("cols", max=8192 // m)
-    program = torch.onnx.export(model.eval(), (frames,), input_names=["frames"], output_names=["params"],
-                                opset_version=ONNX_OPSET, dynamo=True, external_data=False,
-                                dynamic_shapes={"frames": {0: batch, 1: m * rows, 2: m * cols}})
+    cfg = model.cfg
+    if cfg.arch == "transformer":
+        from ..gaussians import lattice_anchors
+        frames = torch.rand(2, cfg.clip_frames, cfg.canvas, cfg.canvas, 3)
+        k = 4
+        anchors = torch.from_numpy(lattice_anchors(k, [(0.5, 0.5), (0.2, 0.7)]))
+        most = 65536 if cfg.parametrization == "local" else cfg.max_gaussians  # "paper": its learned tokens
+        gaussians = torch.export.Dim("gaussians", min=2, max=most)
+        inputs, names = (frames, anchors, torch.tensor([2.0 / k])), ["frames", "anchors", "cell"]
+        dynamic = {"frames": {0: batch}, "anchors": {0: batch, 1: gaussians}, "cell": None}
+    else:
+        m = cfg.multiple
+        rows, cols = torch.export.Dim("rows", max=8192 // m), torch.export.Dim("cols", max=8192 // m)
+        inputs, names = (torch.rand(2, 4 * m, 6 * m, 3),), ["frames"]
+        dynamic = {"frames": {0: batch, 1: m * rows, 2: m * cols}}
+    program = torch.onnx.export(model.eval(), inputs, input_names=names, output_names=["params"],
+                                opset_version=ONNX_OPSET, dynamo=True, external_data=False, dynamic_shapes=dynamic)
     with AtomicOutput(path) as temp:
         program.save(str(temp))
 
@@ -66,23 +90,27 @@ def load_checkpoint(path) -> dict:
     return state
 
 
-def export_checkpoint(run, out, name: str = BUNDLED_NAME) -> dict:
-    """Write the weights of `run`/checkpoint.pt into `out`; returns the training info recorded."""
+def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
+    """Write the weights of `run`/checkpoint.pt into `out` as `name` (default: its design's name,
+    network.DEFAULT_NAMES); returns the name and the training info recorded."""
 
-    from ..model import ConvGS, build_model
+    from ..model import build_model
     checkpoint_path = Path(run) / "checkpoint.pt"
     if not checkpoint_path.is_file():
         raise HyperGSError(f"{checkpoint_path}: no checkpoint")
     state = load_checkpoint(checkpoint_path)
     model = build_model(json.loads(state["config"]))
-    if not isinstance(model, ConvGS):
-        raise HyperGSError(f"{checkpoint_path}: a {type(model).__name__} (the paper's design); the runtime encodes "
-                           "with the conv network, so only conv runs export (the trainer evaluates the others)")
     model.load_state_dict(state["model"])
     args = json.loads(state["args"])
-    train_args = {k: args[k] for k in ("data", "batch", "size", "lr", "clip", "steps", "seed", "preset") if k in args}
+    keys = ("data", "batch", "size", "lr", "clip", "steps", "seed", "preset")
+    if model.cfg.arch == "transformer":
+        keys = tuple(k for k in keys if k != "size") + ("gaussians",)  # it trains on its canvas, N per step
+    train_args = {k: args[k] for k in keys if k in args}
+    if "regularizer" in state:  # the transformer's adaptive thresholds, for the record
+        train_args["regularizer"] = {k: round(float(v), 4) for k, v in state["regularizer"].items()}
     info = dict(step=int(state["step"]), cpu_hours=round(float(state["cpu_seconds"]) / 3600, 3),
                 wall_hours=round(float(state["wall_seconds"]) / 3600, 3), train_args=train_args)
+    name = name or DEFAULT_NAMES[model.cfg.arch]
     save_weights(model, out, name, info)
     export_onnx(model, Path(out) / f"{name}.onnx")
-    return info
+    return name, info

@@ -4,7 +4,9 @@ erank of a 2D Gaussian with scales s: q_k = s_k^2 / sum_j s_j^2, erank = exp(-su
 [1, 2] (1: a needle, 2: a circle). Gaussians whose erank falls below tau = max(floor, EMA of the
 batch's 1st erank percentile) pay the hinge tau - erank; scales above s_max = min(ceiling, EMA of
 the 99th scale percentile) pay their squared excess. The EMAs are buffers: they live in the
-module's state_dict and so in every checkpoint.
+module's state_dict and so in every checkpoint. Scales are in whatever unit the caller passes; the
+trainer passes them in grid cells (the anchor spacing), so that the thresholds hold for every
+Gaussian count it draws.
 """
 from __future__ import annotations
 
@@ -38,7 +40,7 @@ class AdaptiveRegularizer(nn.Module):
         return self.scale_ema.clamp_max(self.scale_ceiling)
 
     def forward(self, scales: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        """scales [..., 2] in canvas pixels -> (weighted loss, stats). Updates the EMAs in training."""
+        """scales [..., 2] -> (weighted loss, stats). Updates the EMAs in training."""
         erank = effective_rank(scales)
         tau, s_max = self.tau, self.s_max
         erank_loss = torch.relu(tau - erank).mean()

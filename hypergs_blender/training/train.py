@@ -4,7 +4,8 @@ periodic evaluation, resident memory in the log.
 The conv network (the default) trains on single frames: batches of random `--size` crops (photo pans
 at random scales, procedural scenes), one Gaussian per 4x4 pixels, MSE of the render against the
 crop, AdamW. The paper's transformer (presets small/paper) trains on T-frame clips with a Gaussian
-count drawn per step, MSE plus the adaptive erank/scale regularizers, LAMB.
+count drawn per step (a k x k anchor lattice at a random phase per clip, as the windows of a tiled
+frame see it), MSE plus the adaptive erank/scale regularizers (on scales in grid cells), LAMB.
 
 The same script runs on one CPU process or under `torchrun --nproc_per_node=K` (DDP, NCCL on GPUs,
 gloo on CPUs): every rank draws different clips (sources.make_batch is a pure function of (seed,
@@ -30,6 +31,7 @@ import torch
 import torch.distributed as dist
 
 from ..errors import HyperGSError
+from ..gaussians import lattice_anchors
 from ..io.frames import read_frames
 from ..io.images import resize_exact
 from ..metrics import psnr, psnr_from_mse
@@ -91,21 +93,35 @@ class Prefetcher:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
-def training_loss(model, frames: torch.Tensor, n: int, regularizer, inputs: torch.Tensor | None = None
-                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]. inputs: what the (conv) network
-    sees instead of the frames, e.g. the frames with noise (the render is compared with the frames)."""
+def lattice_for_step(n: int, seed: int, step: int, rank: int, clips: int) -> tuple[int, np.ndarray]:
+    """The transformer's anchors at a step: a k x k lattice (k = round(sqrt(n))) at a random phase per
+    clip [clips, 2], as the windows of a tiled frame cut the lattice (gaussians.lattice_anchors); a pure
+    function of (seed, step, rank), like the batch."""
+    k = max(1, round(math.sqrt(n)))
+    return k, np.random.default_rng([seed, step, rank, 104729]).random((clips, 2), dtype=np.float32)
+
+
+def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] | None, regularizer,
+                  inputs: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]; lattice: the transformer's
+    (k, phase per clip), see lattice_for_step (the conv network's Gaussians are its cells). inputs: what
+    the (conv) network sees instead of the frames, e.g. the frames with noise (the render is compared
+    with the frames)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
         params = model(frames if inputs is None else inputs.reshape(b * t, size, size, 3)).float()
     else:
-        anchors, cell = anchor_inputs(n, frames.device)
-        params = model(frames, anchors, cell).float()
+        k, phase = lattice
+        anchors = torch.from_numpy(lattice_anchors(k, phase)).to(frames.device)
+        params = model(frames, anchors, torch.tensor([2.0 / k], device=frames.device)).float()
     mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2)
     if regularizer is None:
         return mse, mse, {}
-    reg_loss, stats = regularizer(params[..., 2:4])
+    # Scales in grid cells (the anchor spacing, size / k canvas pixels): the thresholds then hold for
+    # every Gaussian count drawn (in canvas pixels the EMA, set by the steps with many small Gaussians,
+    # penalised every Gaussian of a step with few large ones).
+    reg_loss, stats = regularizer(params[..., 2:4] * (lattice[0] / size))
     return mse + reg_loss, mse, stats
 
 
@@ -205,15 +221,17 @@ def run(args) -> None:
     model = build_model(config).to(device)
     conv = isinstance(model, ConvGS)
     teacher = None
-    if conv and args.init_from:
-        if not resume:
-            warm_start(model, args.init_from, rank)
-        if args.distill:  # the teacher's features, read by the warm start's head, kept as it came
-            from ..network import load_model
-            teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
-            for name, parameter in model.named_parameters():
-                parameter.requires_grad_(not name.startswith("head."))
-    regularizer = None if conv else AdaptiveRegularizer().to(device)
+    if not resume and args.init_from:  # warm start from exported weights (see warm_start)
+        warm_start(model, args.init_from, rank)
+    if args.distill and not conv:
+        raise HyperGSError("--distill trains the conv network's cell features; this run is a transformer")
+    if args.distill:  # the teacher's features, read by the warm start's head, kept as it came
+        from ..network import load_model
+        teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
+        for name, parameter in model.named_parameters():
+            parameter.requires_grad_(not name.startswith("head."))
+    # the paper's thresholds (s0 32 px, ceiling 80 px at its 8 px spacing: N = 1000 on 256^2) in grid cells
+    regularizer = None if conv else AdaptiveRegularizer(s0=4.0, scale_ceiling=10.0).to(device)
     if conv:
         # a run keeps the parameter groups it started with (a checkpoint's optimizer state needs them)
         lr_scale = dict(json.loads(resume["args"]).get("lr_scale") or {}) if resume else dict(args.lr_scale)
@@ -259,13 +277,14 @@ def run(args) -> None:
         while step < args.steps:
             frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device)
             n = gaussians_for_step(args.gaussians, args.seed, step)
+            lattice = None if conv else lattice_for_step(n, args.seed, step, rank, frames.shape[0])
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
             with amp:
                 if teacher is None:
                     inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
-                    loss, mse, stats = training_loss(train_model, frames, n, regularizer, inputs)
+                    loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs)
                 else:
                     loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)
@@ -284,7 +303,7 @@ def run(args) -> None:
                                   psnr=round(train_psnr, 3), grad_norm=round(grad_norm, 4), rss_mb=round(rss_mb()),
                                   **stats)
                     if not conv:
-                        record["n"] = n
+                        record["n"] = lattice[0] ** 2
                     log.write(json.dumps(record) + "\n")
                     log.flush()
                 if step % args.checkpoint_every == 0 or step == args.steps:

@@ -39,7 +39,7 @@ def _lattice_gain(sigma: float, cutoff: float = 3.0) -> float:
 
 COLOUR_GAIN = _lattice_gain(INITIAL_SIGMA)
 MAX_FPS = 10000.0
-MAX_GRID = 1 << 10
+MAX_GRID = 1 << 15  # a lattice side: a Gaussian per pixel of the longest side images may have (limits.SIDE)
 
 
 @dataclass
@@ -48,7 +48,7 @@ class GaussianVideo:
     canvas_width: int
     canvas_height: int
     fps: float = 24.0
-    grid: tuple[int, int] = (1, 1)  # patch grid (columns, rows) the clip was encoded with
+    grid: tuple[int, int] = (1, 1)  # the Gaussians' lattice (columns, rows) the clip was encoded on
     source: dict = field(default_factory=dict)  # free-form: path, frame range, size, psnr, model
 
     def __post_init__(self):

@@ -29,6 +29,19 @@ def test_save_load_round_trip(tmp_path):
     assert (back.canvas_width, back.canvas_height, back.fps, back.grid, back.source) == (64, 48, 25.0, (2, 2), {"path": "x.mp4"})
 
 
+def test_a_panorama_lattice_round_trips(tmp_path):
+    """An 8192 x 1024 panorama at Standard (cells of 6 px) is a 1365 x 170 lattice: wider than 1024
+    cells, which the grid field once refused after the encode had started."""
+    from hypergs_blender.encode import EncodeSettings, FloorEncoder
+    from hypergs_blender.io.hgs import load_hgs, save_hgs
+    layout = EncodeSettings.choose(quality="standard").layout(8192, 1024, FloorEncoder())
+    assert layout.cols > 1024
+    video = GaussianVideo(random_params(1, 4), 8192, 1024, grid=(layout.cols, layout.rows))
+    save_hgs(video, tmp_path / "wide.hgs")
+    save_npz(video, tmp_path / "wide.npz")
+    assert load_hgs(tmp_path / "wide.hgs").grid == load_npz(tmp_path / "wide.npz").grid == (layout.cols, layout.rows)
+
+
 def test_load_rejects_other_files(tmp_path):
     (tmp_path / "bad.npz").write_text("not a zip")
     with pytest.raises(HyperGSError, match="bad.npz"):

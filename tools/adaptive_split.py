@@ -35,12 +35,17 @@ def cell_index(x: np.ndarray, y: np.ndarray, cols: int, rows: int) -> np.ndarray
     return iy * cols + ix
 
 
+def pixel_cells(w: int, h: int, cols: int, rows: int) -> np.ndarray:
+    """The cell (row-major on cols x rows) of each pixel centre of a w x h image -> [h, w]."""
+    ys = (np.arange(h) + 0.5) / h * 2 - 1
+    xs = (np.arange(w) + 0.5) / w * 2 - 1
+    return cell_index(xs[None, :], ys[:, None], cols, rows)
+
+
 def cell_sums(image_error: np.ndarray, cols: int, rows: int) -> np.ndarray:
     """Per-pixel error [T, H, W] summed over each of cols x rows cells -> [T, cols * rows]."""
     t, h, w = image_error.shape
-    ys = (np.arange(h) + 0.5) / h * 2 - 1
-    xs = (np.arange(w) + 0.5) / w * 2 - 1
-    cells = cell_index(xs[None, :], ys[:, None], cols, rows).ravel()
+    cells = pixel_cells(w, h, cols, rows).ravel()
     return np.stack([np.bincount(cells, e.ravel(), cols * rows) for e in image_error])
 
 
@@ -117,15 +122,15 @@ def coverage_at(params, weight, points, w, h):
     """The kernel sum of `params` (times weight) at the means of `points`."""
     ones = params.copy()
     ones[..., 5:8] = weight[..., None]
-    image = render_params(ones, w, h, w, h)[..., 0]
-    x = np.clip(((points[..., 0] + 1) / 2 * w).astype(np.int64), 0, w - 1)
-    y = np.clip(((points[..., 1] + 1) / 2 * h).astype(np.int64), 0, h - 1)
-    return np.take_along_axis(image.reshape(image.shape[0], -1), y * w + x, axis=1)
+    return sample_at(render_params(ones, w, h, w, h)[..., :1], points, w, h)[..., 0]
 
 
 def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score: str):
-    """params [T, budget, 8] and the split masks [T, Nc], with the coarse layout. score: SCORES, with
-    -s (smoothed over 3 x 3 cells) and/or +n (colours normalised by kernel sums, `normalise`)."""
+    """params [T, budget, 8], the split masks [T, Nc], the coarse and the fine layout. score: one of
+    SCORES (error: the coarse render's squared error in the cell; diff: coarse against fine render;
+    gain: coarse error - fine error), then optionally -s (scores summed over 3 x 3 cells), +n (colours
+    normalised by kernel sums, `normalise`), +rK (K residual steps towards the ideal composite, `correct`),
+    in that order: e.g. error-s+r3."""
     score, corrections = (score.split("+r")[0], int(score.split("+r")[1])) if "+r" in score else (score, 0)
     score, norm = score.removesuffix("+n"), score.endswith("+n")
     score, smooth = score.removesuffix("-s"), score.endswith("-s")
@@ -155,9 +160,7 @@ def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score:
         out = normalise(out, origin, weight, coarse, fine, w, h)
     if corrections:
         fine_render = render_params(fine, w, h, w, h)
-        cy = np.minimum((np.arange(h) * rows) // h, rows - 1)
-        cx = np.minimum((np.arange(w) * cols) // w, cols - 1)
-        ideal = np.where(masks.reshape(t, rows, cols)[:, cy][:, :, cx][..., None], fine_render,
+        ideal = np.where(masks[:, pixel_cells(w, h, cols, rows)][..., None], fine_render,
                          render_params(coarse, w, h, w, h))
         out = correct(out, weight, ideal, corrections, w, h)
     return out, masks, coarse_layout, fine_layout
@@ -169,11 +172,9 @@ def boundary_ratio(rendered, target, masks, cols: int, rows: int, band: int = 2)
     t, h, w = target.shape[:3]
     err = ((np.clip(rendered, 0, 1) - target) ** 2).mean(-1)
     near_all, far_all = [], []
+    cells = pixel_cells(w, h, cols, rows)
     for i in range(t):
-        grid = masks[i].reshape(rows, cols)
-        cy = np.minimum((np.arange(h) * rows) // h, rows - 1)
-        cx = np.minimum((np.arange(w) * cols) // w, cols - 1)
-        pix = grid[cy][:, cx]
+        pix = masks[i][cells]
         edge = np.zeros((h, w), bool)
         edge[:, 1:] |= pix[:, 1:] != pix[:, :-1]
         edge[1:, :] |= pix[1:, :] != pix[:-1, :]
@@ -206,7 +207,7 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=8)
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--fractions", default="0.35,0.5,0.7")
-    p.add_argument("--scores", default=",".join(SCORES))
+    p.add_argument("--scores", default=",".join(SCORES), help="comma-separated score variants (see `adaptive`)")
     p.add_argument("--ls", default="", help="variants (FRACTION:SCORE, comma-separated) also measured with LS colours")
     p.add_argument("--backend", default="onnx")
     p.add_argument("--json", default=None)

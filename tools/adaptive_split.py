@@ -4,7 +4,8 @@ density (half the cell, or the finest the network takes); the coarse cells that 
 per cell) give their Gaussian up for the fine Gaussians whose means fall inside them, as many cells as
 keep the total at the uniform layout's count. Measured like `hypergs eval --gaussians N --frames 8
 --size 256` (its frame sampling, metrics.psnr, the numpy renderer), with and without the least-squares
-colours that refinement starts with (refine.least_squares_colours, through refine_params(..., 1)).
+colours that refinement starts with (refine.least_squares_colours: `hypergs encode --refine 1` at its
+default 10 iterations), and (--ceiling) the PSNR of a seamless split, the ideal composite.
 
     OMP_NUM_THREADS=1 .venv/bin/python tools/adaptive_split.py VIDEOS... --gaussians 1000 --json out.json
 """
@@ -21,7 +22,7 @@ from hypergs_blender import metrics
 from hypergs_blender.encode import encode_frames, frames_layout, encoder_layout
 from hypergs_blender.evaluate import read_eval_frames, warm_up
 from hypergs_blender.network import resolve_encoder
-from hypergs_blender.refine import refine_params
+from hypergs_blender.refine import least_squares_colours
 from hypergs_blender.render import render_params
 
 SCORES = ("error", "diff", "gain")
@@ -50,12 +51,13 @@ def cell_sums(image_error: np.ndarray, cols: int, rows: int) -> np.ndarray:
 
 
 def split_cells(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: int, rows: int,
-                budget: int) -> tuple[np.ndarray, np.ndarray]:
+                budget: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One frame: coarse params [Nc, 8] on a cols x rows grid, fine params [Nf, 8], a score per coarse
     cell -> exactly `budget` params: the highest-scoring cells' coarse Gaussians replaced by the fine
     Gaussians whose means fall inside them, as many cells as the budget holds; what is left over (a
     few Gaussians) goes to the best unsplit coarse Gaussians, each halved into two identical halves of
-    its colour (the same render). Also returns the split mask per coarse cell."""
+    its colour (the same render). Also returns the split mask per coarse cell and, per output Gaussian,
+    whether it is a fine one and its weight (0.5 for the halves)."""
     nc = len(coarse)
     owner = cell_index(fine[:, 0], fine[:, 1], cols, rows)
     counts = np.bincount(owner, minlength=nc)
@@ -126,7 +128,7 @@ def coverage_at(params, weight, points, w, h):
 
 
 def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score: str):
-    """params [T, budget, 8], the split masks [T, Nc], the coarse and the fine layout. score: one of
+    """params [T, budget, 8], the split masks [T, Nc], the coarse and fine params, the coarse layout. score: one of
     SCORES (error: the coarse render's squared error in the cell; diff: coarse against fine render;
     gain: coarse error - fine error), then optionally -s (scores summed over 3 x 3 cells), +n (colours
     normalised by kernel sums, `normalise`), +rK (K residual steps towards the ideal composite, `correct`),
@@ -159,11 +161,14 @@ def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score:
     if norm:
         out = normalise(out, origin, weight, coarse, fine, w, h)
     if corrections:
-        fine_render = render_params(fine, w, h, w, h)
-        ideal = np.where(masks[:, pixel_cells(w, h, cols, rows)][..., None], fine_render,
-                         render_params(coarse, w, h, w, h))
-        out = correct(out, weight, ideal, corrections, w, h)
-    return out, masks, coarse_layout, fine_layout
+        out = correct(out, weight, ideal_composite(coarse, fine, masks, cols, rows, w, h), corrections, w, h)
+    return out, masks, coarse, fine, coarse_layout
+
+
+def ideal_composite(coarse, fine, masks, cols: int, rows: int, w: int, h: int) -> np.ndarray:
+    """What a seamless split would render: the fine render in the split cells, the coarse one elsewhere."""
+    return np.where(masks[:, pixel_cells(w, h, cols, rows)][..., None], render_params(fine, w, h, w, h),
+                    render_params(coarse, w, h, w, h))
 
 
 def boundary_ratio(rendered, target, masks, cols: int, rows: int, band: int = 2):
@@ -192,6 +197,13 @@ def boundary_ratio(rendered, target, masks, cols: int, rows: int, band: int = 2)
     return float(near.mean() / max(far.mean(), 1e-12)) if len(near) else None
 
 
+def ls_colours(params: np.ndarray, source: np.ndarray, iterations: int) -> np.ndarray:
+    """refine.least_squares_colours of params [T, N, 8] against uint8 frames (what refine step 1 does)."""
+    import torch
+    target = torch.from_numpy(source).float() / 255
+    return least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target, iterations).numpy()
+
+
 def measure(source, params, layout_cell):
     h, w = source.shape[1:3]
     rendered = render_params(params, w, h, w, h)
@@ -209,6 +221,8 @@ def main(argv=None):
     p.add_argument("--fractions", default="0.35,0.5,0.7")
     p.add_argument("--scores", default=",".join(SCORES), help="comma-separated score variants (see `adaptive`)")
     p.add_argument("--ls", default="", help="variants (FRACTION:SCORE, comma-separated) also measured with LS colours")
+    p.add_argument("--ls-iterations", type=int, default=10, help="conjugate-gradient iterations of the LS colours")
+    p.add_argument("--ceiling", action="store_true", help="also the PSNR of each variant's ideal composite")
     p.add_argument("--backend", default="onnx")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
@@ -230,24 +244,27 @@ def main(argv=None):
         _, m = measure(source, uniform, layout.cell)
         row["variants"]["uniform"] = dict(m, seconds_per_frame=enc_s)
         started = time.perf_counter()
-        uniform_ls = refine_params(uniform, source, 1)
+        uniform_ls = ls_colours(uniform, source, args.ls_iterations)
         ls_s = (time.perf_counter() - started) / t
         _, m = measure(source, uniform_ls, layout.cell)
         row["variants"]["uniform+ls"] = dict(m, seconds_per_frame=enc_s + ls_s, ls_seconds_per_frame=ls_s)
         for f in fractions:
             for sc in scores:
                 started = time.perf_counter()
-                params, masks, cl, fl = adaptive(source, encoder, layout, f, sc)
+                params, masks, coarse, fine, cl = adaptive(source, encoder, layout, f, sc)
                 ad_s = (time.perf_counter() - started) / t
                 assert params.shape == (t, layout.count, 8)
                 rendered, m = measure(source, params, layout.cell)
                 name = f"adaptive f={f:g} {sc}"
-                row["variants"][name] = dict(m, seconds_per_frame=ad_s, coarse=cl.count, fine=fl.count,
+                row["variants"][name] = dict(m, seconds_per_frame=ad_s, coarse=cl.count, fine=fine.shape[1],
                                              split_fraction=float(masks.mean()),
                                              boundary_ratio=boundary_ratio(rendered, target, masks, cl.cols, cl.rows))
+                if args.ceiling:
+                    ideal = ideal_composite(coarse, fine, masks, cl.cols, cl.rows, w, h)
+                    row["variants"][name]["ideal_psnr"] = float(np.mean(metrics.psnr(ideal, target)))
                 if (f, sc) in ls_variants:
                     started = time.perf_counter()
-                    params_ls = refine_params(params, source, 1)
+                    params_ls = ls_colours(params, source, args.ls_iterations)
                     ls2 = (time.perf_counter() - started) / t
                     rendered, m = measure(source, params_ls, layout.cell)
                     row["variants"][name + " +ls"] = dict(
@@ -260,9 +277,10 @@ def main(argv=None):
                     seconds_per_frame=float(np.mean([r["variants"][n]["seconds_per_frame"] for r in rows])))
             for n in names}
     for n in names:
-        b = [r["variants"][n].get("boundary_ratio") for r in rows]
-        if b[0] is not None:
-            mean[n]["boundary_ratio"] = float(np.mean(b))
+        for key in ("boundary_ratio", "ideal_psnr"):
+            values = [r["variants"][n].get(key) for r in rows]
+            if values[0] is not None:
+                mean[n][key] = float(np.mean(values))
         rip = [r["variants"][n]["ripple"] for r in rows if r["variants"][n]["ripple"]["blocks"]]
         if rip:
             mean[n]["flat_ripple_render_std"] = float(np.mean([q["render_std"] for q in rip]))
@@ -270,6 +288,7 @@ def main(argv=None):
     report = dict(gaussians=args.gaussians, frames=args.frames, size=args.size, videos=rows, mean=mean)
     for n in names:
         extra = f"  boundary {mean[n]['boundary_ratio']:.3f}" if "boundary_ratio" in mean[n] else ""
+        extra += f"  ideal composite {mean[n]['ideal_psnr']:.2f} dB" if "ideal_psnr" in mean[n] else ""
         print(f"{n:32s} {mean[n]['psnr']:6.2f} dB  {mean[n]['seconds_per_frame'] * 1000:7.1f} ms/frame{extra}")
     if args.json:
         with open(args.json, "w") as fh:

@@ -89,6 +89,62 @@ def split_cells(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: i
     return out, split, origin, weight
 
 
+def coarse_share(split: np.ndarray, x: np.ndarray, y: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """The coarse layout's share at points x, y ([-1, 1] coordinates): 1 in unsplit cells, 0 in split
+    ones, interpolated bilinearly between cell centres (a ramp one coarse cell wide across a border)."""
+    a = 1 - split.reshape(rows, cols).astype(np.float32)
+    u = np.clip((x + 1) / 2 * cols - 0.5, 0, cols - 1)
+    v = np.clip((y + 1) / 2 * rows - 0.5, 0, rows - 1)
+    i0 = np.clip(np.floor(v), 0, max(rows - 2, 0)).astype(np.int64)
+    j0 = np.clip(np.floor(u), 0, max(cols - 2, 0)).astype(np.int64)
+    i1, j1 = np.minimum(i0 + 1, rows - 1), np.minimum(j0 + 1, cols - 1)
+    fv, fu = v - i0, u - j0
+    return ((a[i0, j0] * (1 - fu) + a[i0, j1] * fu) * (1 - fv) + (a[i1, j0] * (1 - fu) + a[i1, j1] * fu) * fv)
+
+
+def blend_cells(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: int, rows: int,
+                budget: int, eps: float = 1e-3):
+    """split_cells without a hard border: every coarse Gaussian's colour times the coarse share at its
+    mean (coarse_share), every fine one's times 1 - that; Gaussians whose share is 0 are left out. The
+    render is then about share x coarse render + (1 - share) x fine render, seamless by construction;
+    the ramp costs the fine Gaussians on the unsplit side of each border. As many of the best cells are
+    split as the budget holds (bisection), the rest filled with halves as in split_cells."""
+    nc = len(coarse)
+    order = np.argsort(-score, kind="stable")
+
+    def sets(k):
+        split = np.zeros(nc, bool)
+        split[order[:k]] = True
+        wc = coarse_share(split, coarse[:, 0], coarse[:, 1], cols, rows)
+        wf = 1 - coarse_share(split, fine[:, 0], fine[:, 1], cols, rows)
+        return split, wc, wf, int((wc > eps).sum() + (wf > eps).sum())
+
+    lo, hi = 0, nc  # the largest k whose count fits (counts grow with k, nearly monotonically)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if sets(mid)[3] <= budget:
+            lo = mid
+        else:
+            hi = mid - 1
+    split, wc, wf, count = sets(lo)
+    kc, kf = wc > eps, wf > eps
+    parts = [coarse[kc].copy(), fine[kf].copy()]
+    parts[0][:, 5:8] *= wc[kc, None]
+    parts[1][:, 5:8] *= wf[kf, None]
+    weight = np.concatenate([wc[kc], wf[kf]]).astype(np.float32)
+    out = np.concatenate(parts)
+    deficit = budget - len(out)
+    full = np.nonzero(wc[kc] >= 1 - eps)[0]  # whole coarse Gaussians, best scores first
+    rank = np.argsort(-score[np.nonzero(kc)[0][full]], kind="stable")
+    halve = full[rank][:deficit]
+    out[halve, 5:8] *= 0.5
+    weight[halve] *= 0.5
+    out = np.concatenate([out, out[halve]])
+    weight = np.concatenate([weight, weight[halve]])
+    assert len(out) == budget, (len(out), budget)
+    return out, split, weight
+
+
 def normalise(params, origin, weight, coarse, fine, w, h):
     """Seam fix without a solve: each Gaussian's colour scaled by the kernel sum its own layout has at
     its mean (all coarse, or all fine) over the kernel sum of the mixed set there."""
@@ -131,9 +187,10 @@ def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score:
     """params [T, budget, 8], the split masks [T, Nc], the coarse and fine params, the coarse layout. score: one of
     SCORES (error: the coarse render's squared error in the cell; diff: coarse against fine render;
     gain: coarse error - fine error), then optionally -s (scores summed over 3 x 3 cells), +n (colours
-    normalised by kernel sums, `normalise`), +rK (K residual steps towards the ideal composite, `correct`),
-    in that order: e.g. error-s+r3."""
+    normalised by kernel sums, `normalise`) or +b (a blended border, `blend_cells`), +rK (K residual steps towards the ideal composite, `correct`),
+    in that order: e.g. error-s+r3, error-s+b."""
     score, corrections = (score.split("+r")[0], int(score.split("+r")[1])) if "+r" in score else (score, 0)
+    score, blend = score.removesuffix("+b"), score.endswith("+b")
     score, norm = score.removesuffix("+n"), score.endswith("+n")
     score, smooth = score.removesuffix("-s"), score.endswith("-s")
     t, h, w = source.shape[:3]
@@ -156,19 +213,30 @@ def adaptive(source: np.ndarray, encoder, budget_layout, fraction: float, score:
     if smooth:  # 3 x 3 box over the cells: compact split regions, shorter coarse/fine borders
         g = np.pad(s.reshape(t, rows, cols), ((0, 0), (1, 1), (1, 1)), mode="edge")
         s = sum(g[:, dy:dy + rows, dx:dx + cols] for dy in range(3) for dx in range(3)).reshape(t, -1)
-    out, masks, origin, weight = map(np.stack, zip(*(split_cells(coarse[i], fine[i], s[i], cols, rows, budget)
-                                                     for i in range(t))))
+    if blend:
+        out, masks, weight = map(np.stack, zip(*(blend_cells(coarse[i], fine[i], s[i], cols, rows, budget)
+                                                 for i in range(t))))
+    else:
+        out, masks, origin, weight = map(np.stack, zip(*(split_cells(coarse[i], fine[i], s[i], cols, rows, budget)
+                                                         for i in range(t))))
     if norm:
         out = normalise(out, origin, weight, coarse, fine, w, h)
     if corrections:
-        out = correct(out, weight, ideal_composite(coarse, fine, masks, cols, rows, w, h), corrections, w, h)
+        ideal = ideal_composite(coarse, fine, masks, cols, rows, w, h, blend)
+        out = correct(out, weight, ideal, corrections, w, h)
     return out, masks, coarse, fine, coarse_layout
 
 
-def ideal_composite(coarse, fine, masks, cols: int, rows: int, w: int, h: int) -> np.ndarray:
-    """What a seamless split would render: the fine render in the split cells, the coarse one elsewhere."""
-    return np.where(masks[:, pixel_cells(w, h, cols, rows)][..., None], render_params(fine, w, h, w, h),
-                    render_params(coarse, w, h, w, h))
+def ideal_composite(coarse, fine, masks, cols: int, rows: int, w: int, h: int, blend: bool = False) -> np.ndarray:
+    """What a seamless split would render: the fine render in the split cells, the coarse one elsewhere
+    (blend: mixed by the coarse share at each pixel, coarse_share)."""
+    if blend:
+        ys = (np.arange(h) + 0.5) / h * 2 - 1
+        xs = (np.arange(w) + 0.5) / w * 2 - 1
+        share = np.stack([coarse_share(m, xs[None, :], ys[:, None], cols, rows) for m in masks])[..., None]
+    else:
+        share = 1 - masks[:, pixel_cells(w, h, cols, rows)][..., None].astype(np.float32)
+    return share * render_params(coarse, w, h, w, h) + (1 - share) * render_params(fine, w, h, w, h)
 
 
 def boundary_ratio(rendered, target, masks, cols: int, rows: int, band: int = 2):
@@ -260,7 +328,7 @@ def main(argv=None):
                                              split_fraction=float(masks.mean()),
                                              boundary_ratio=boundary_ratio(rendered, target, masks, cl.cols, cl.rows))
                 if args.ceiling:
-                    ideal = ideal_composite(coarse, fine, masks, cl.cols, cl.rows, w, h)
+                    ideal = ideal_composite(coarse, fine, masks, cl.cols, cl.rows, w, h, blend="+b" in sc)
                     row["variants"][name]["ideal_psnr"] = float(np.mean(metrics.psnr(ideal, target)))
                 if (f, sc) in ls_variants:
                     started = time.perf_counter()

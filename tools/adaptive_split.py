@@ -22,7 +22,7 @@ from hypergs_blender import metrics
 from hypergs_blender.encode import encode_frames, frames_layout, encoder_layout
 from hypergs_blender.evaluate import read_eval_frames, warm_up
 from hypergs_blender.network import resolve_encoder
-from hypergs_blender.refine import least_squares_colours
+from hypergs_blender.refine import least_squares_colours, refine_params
 from hypergs_blender.render import render_params
 
 SCORES = ("error", "diff", "gain")
@@ -265,8 +265,11 @@ def boundary_ratio(rendered, target, masks, cols: int, rows: int, band: int = 2)
     return float(near.mean() / max(far.mean(), 1e-12)) if len(near) else None
 
 
-def ls_colours(params: np.ndarray, source: np.ndarray, iterations: int) -> np.ndarray:
-    """refine.least_squares_colours of params [T, N, 8] against uint8 frames (what refine step 1 does)."""
+def ls_colours(params: np.ndarray, source: np.ndarray, iterations: int, refine: int = 1) -> np.ndarray:
+    """refine.least_squares_colours of params [T, N, 8] against uint8 frames (what refine step 1 does),
+    or (refine > 1) refine.refine_params: those colours, then refine - 1 Adam steps on everything."""
+    if refine > 1:
+        return refine_params(params, source, refine)
     import torch
     target = torch.from_numpy(source).float() / 255
     return least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target, iterations).numpy()
@@ -290,6 +293,8 @@ def main(argv=None):
     p.add_argument("--scores", default=",".join(SCORES), help="comma-separated score variants (see `adaptive`)")
     p.add_argument("--ls", default="", help="variants (FRACTION:SCORE, comma-separated) also measured with LS colours")
     p.add_argument("--ls-iterations", type=int, default=10, help="conjugate-gradient iterations of the LS colours")
+    p.add_argument("--refine", type=int, default=1,
+                   help="the LS variants refine this many steps (1: the LS colours only; more: refine_params)")
     p.add_argument("--ceiling", action="store_true", help="also the PSNR of each variant's ideal composite")
     p.add_argument("--backend", default="onnx")
     p.add_argument("--json", default=None)
@@ -312,7 +317,7 @@ def main(argv=None):
         _, m = measure(source, uniform, layout.cell)
         row["variants"]["uniform"] = dict(m, seconds_per_frame=enc_s)
         started = time.perf_counter()
-        uniform_ls = ls_colours(uniform, source, args.ls_iterations)
+        uniform_ls = ls_colours(uniform, source, args.ls_iterations, args.refine)
         ls_s = (time.perf_counter() - started) / t
         _, m = measure(source, uniform_ls, layout.cell)
         row["variants"]["uniform+ls"] = dict(m, seconds_per_frame=enc_s + ls_s, ls_seconds_per_frame=ls_s)
@@ -332,7 +337,7 @@ def main(argv=None):
                     row["variants"][name]["ideal_psnr"] = float(np.mean(metrics.psnr(ideal, target)))
                 if (f, sc) in ls_variants:
                     started = time.perf_counter()
-                    params_ls = ls_colours(params, source, args.ls_iterations)
+                    params_ls = ls_colours(params, source, args.ls_iterations, args.refine)
                     ls2 = (time.perf_counter() - started) / t
                     rendered, m = measure(source, params_ls, layout.cell)
                     row["variants"][name + " +ls"] = dict(

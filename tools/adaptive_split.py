@@ -295,6 +295,8 @@ def main(argv=None):
     p.add_argument("--ls-iterations", type=int, default=10, help="conjugate-gradient iterations of the LS colours")
     p.add_argument("--refine", type=int, default=1,
                    help="the LS variants refine this many steps (1: the LS colours only; more: refine_params)")
+    p.add_argument("--temporal-frames", type=int, default=0,
+                   help="also eval's temporal figures on this many consecutive frames (0: none; eval uses 8)")
     p.add_argument("--ceiling", action="store_true", help="also the PSNR of each variant's ideal composite")
     p.add_argument("--backend", default="onnx")
     p.add_argument("--json", default=None)
@@ -343,6 +345,21 @@ def main(argv=None):
                     row["variants"][name + " +ls"] = dict(
                         m, seconds_per_frame=ad_s + ls2, ls_seconds_per_frame=ls2,
                         boundary_ratio=boundary_ratio(rendered, target, masks, cl.cols, cl.rows))
+        if args.temporal_frames >= 2:  # eval's temporal figures, on consecutive frames from the middle
+            run = read_eval_frames(video, args.temporal_frames, args.size, consecutive=True)
+            base = encode_frames(run, encoder, frames_layout(run, encoder, gaussians=args.gaussians))
+            runs = {"uniform": base, "uniform+ls": ls_colours(base, run, args.ls_iterations, args.refine)}
+            for f in fractions:
+                for sc in scores:
+                    name = f"adaptive f={f:g} {sc}"
+                    runs[name] = adaptive(run, encoder, layout, f, sc)[0]
+                    if (f, sc) in ls_variants:
+                        runs[name + " +ls"] = ls_colours(runs[name], run, args.ls_iterations, args.refine)
+            for name, params in runs.items():
+                rendered = render_params(params, w, h, w, h)
+                row["variants"][name]["temporal"] = dict(
+                    delta_psnr=metrics.delta_psnr(rendered, run / np.float32(255)),
+                    still_change=metrics.still_change(rendered, run / np.float32(255)))
         rows.append(row)
         print(video, {k: round(v["psnr"], 2) for k, v in row["variants"].items()}, file=sys.stderr, flush=True)
     names = list(rows[0]["variants"])
@@ -354,6 +371,12 @@ def main(argv=None):
             values = [r["variants"][n].get(key) for r in rows]
             if values[0] is not None:
                 mean[n][key] = float(np.mean(values))
+        temporal = [r["variants"][n]["temporal"] for r in rows if "temporal" in r["variants"][n]]
+        if temporal:
+            still = [q["still_change"] for q in temporal if q["still_change"]["render"] is not None]
+            mean[n]["delta_psnr"] = float(np.mean([q["delta_psnr"] for q in temporal]))
+            mean[n]["still_change"] = (float(np.average([c["render"] for c in still], weights=[c["fraction"] for c in still]))
+                                       if still else None)
         rip = [r["variants"][n]["ripple"] for r in rows if r["variants"][n]["ripple"]["blocks"]]
         if rip:
             mean[n]["flat_ripple_render_std"] = float(np.mean([q["render_std"] for q in rip]))
@@ -362,6 +385,8 @@ def main(argv=None):
     for n in names:
         extra = f"  boundary {mean[n]['boundary_ratio']:.3f}" if "boundary_ratio" in mean[n] else ""
         extra += f"  ideal composite {mean[n]['ideal_psnr']:.2f} dB" if "ideal_psnr" in mean[n] else ""
+        extra += f"  delta-PSNR {mean[n]['delta_psnr']:.2f} dB" if "delta_psnr" in mean[n] else ""
+        extra += f"  still change {mean[n]['still_change']:.2f}/255" if mean[n].get("still_change") else ""
         print(f"{n:32s} {mean[n]['psnr']:6.2f} dB  {mean[n]['seconds_per_frame'] * 1000:7.1f} ms/frame{extra}")
     if args.json:
         with open(args.json, "w") as fh:

@@ -1,6 +1,6 @@
 """The add-on preferences (Edit > Preferences > Add-ons > HyperGS): where the network runs (an
 onnxruntime execution provider), how many CPU threads it uses, and where the HyperGS transformer's
-weights are (when this build bundles none). hypergs_blender/runtime.py turns them into the encoder's
+weights are (a folder of your own; empty: the bundled ones). hypergs_blender/runtime.py turns them into the encoder's
 parameters; `runtime(context)` reads them on the main thread."""
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty

@@ -78,8 +78,9 @@ def test_preferences_choose_the_execution_provider_and_threads(session):
     assert r["asked_cuda"] == dict(provider="CPUExecutionProvider", threads=1, described="network-onnx on CPU (1 thread)")
     # (The policy itself, providers_for, is tested without Blender: test_runtime.py.)
     assert ["prop", "transformer_weights", None] in r["preferences_drawn"]
-    # No transformer bundled and none set: the preferences say how to get one (test_blender_transformer.py sets one).
-    assert any("bundles none; train and export one" in c[1] for c in r["preferences_drawn"] if c[0] == "label")
+    # None set: the preferences name the bundled transformer (test_blender_transformer.py sets a folder).
+    assert any(c[1].startswith("HyperGS transformer: ") and c[1].endswith("hypergs_transformer.json")
+               for c in r["preferences_drawn"] if c[0] == "label"), r["preferences_drawn"]
 
 
 def test_import_dialog_gaussians_follow_the_resolution(session):

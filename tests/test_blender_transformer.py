@@ -1,5 +1,5 @@
 """The paper's transformer in the real bpy wheel: the Model choice is offered only where transformer
-weights are (the add-on preferences' folder here: this build bundles none), the dialog shows its tiles,
+weights are (bundled, or the add-on preferences' folder: the tiny model here), the dialog shows its tiles,
 Gaussians per tile and per frame and an estimate, File > Import with it converts a short clip with
 tiles x N Gaussians per frame (what the core's encode gives), and weights that are not a transformer's
 are refused with the scene as it was.
@@ -9,6 +9,7 @@ The weights: a tiny transformer at its initialisation (tools/tiny_transformer.py
 session in a subprocess (tests/blender_session.py).
 """
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_the_model_is_offered_only_where_transformer_weights_are(session):
     r = step(session, "dialog")
     assert ["prop", "model", None] not in r["without_weights"]
     assert ["prop", "patch_grid", None] not in r["without_weights"]
-    assert ["prop", "model", None] in r["with_weights"]
+    assert ["prop", "model", None] in r["with_weights"] and ["prop", "model", None] in r["bundled"]
     assert any("HyperGS transformer:" in line for line in r["preferences"]), r["preferences"]
 
 
@@ -104,7 +105,11 @@ def run_session(zip_path, work, out_path):
 
     @record("dialog")
     def _():
-        out = dict(without_weights=dialog())
+        out = dict(bundled=dialog())  # no folder set: the bundled transformer
+        core_runtime = addon_module(addon, "hypergs_blender.runtime")
+        bundled_dir, core_runtime.WEIGHTS_DIR = core_runtime.WEIGHTS_DIR, Path(work) / "bundles_none"
+        out.update(without_weights=dialog())  # a build that bundles none
+        core_runtime.WEIGHTS_DIR = bundled_dir
         prefs.transformer_weights = weights
         layout = Recorder()
         type(prefs).draw(types_namespace(layout=layout, **{k: getattr(prefs, k) for k in
@@ -129,7 +134,10 @@ def run_session(zip_path, work, out_path):
 
     @record("wrong_weights")
     def _():
-        prefs.transformer_weights = str(Path(addon.__file__).parent / "hypergs_blender" / "weights")  # the conv's
+        conv = Path(work) / "conv_only"  # a folder of the conv network alone
+        conv.mkdir()
+        shutil.copy(Path(addon.__file__).parent / "hypergs_blender" / "weights" / "hypergs.json", conv)
+        prefs.transformer_weights = str(conv)
         return attempt_unchanged(bpy, "not a transformer's", lambda: bpy.ops.hypergs.import_video(
             filepath=str(SAMPLE), last_frame=2, model="TRANSFORMER"))
 

@@ -1,6 +1,8 @@
 """The encoder runtime policy (hypergs_blender/runtime.py), without Blender: which onnxruntime execution
 providers a device choice asks for, the HYPERGS_ENCODER choice, the session's encoder cache and how
 what encoded is described. (The add-on preferences that make the Runtime: test_blender_addon.py.)"""
+import shutil
+
 import pytest
 
 from hypergs_blender import optional, runtime
@@ -79,7 +81,9 @@ def test_the_transformer_loads_from_the_folder_set_and_only_from_a_transformer(t
     assert make_encoder(chosen, "transformer") is encoder and len(session_cache) == 1
     assert make_encoder(chosen, "conv").name == "network-onnx" and len(session_cache) == 1  # one network in memory
     from hypergs_blender.network import WEIGHTS_DIR
-    conv = Runtime(transformer_weights=str(WEIGHTS_DIR))  # the bundled conv network's folder
+    (tmp_path / "conv").mkdir()
+    shutil.copy(WEIGHTS_DIR / "hypergs.json", tmp_path / "conv")
+    conv = Runtime(transformer_weights=str(tmp_path / "conv"))  # a folder of the conv network alone
     assert not runtime.transformer_available(conv)
     with pytest.raises(HyperGSError, match="holds the conv network's weights, not a transformer's"):
         make_encoder(conv, "transformer")
@@ -88,3 +92,10 @@ def test_the_transformer_loads_from_the_folder_set_and_only_from_a_transformer(t
         runtime.model_weights(Runtime(transformer_weights=str(tmp_path / "broken.json")), "transformer")
     with pytest.raises(HyperGSError, match="unknown model 'vit'"):
         make_encoder(chosen, "vit")
+
+
+def test_the_bundled_transformer_is_offered_without_a_folder(monkeypatch):
+    from hypergs_blender.network import WEIGHTS_DIR
+    monkeypatch.delenv("HYPERGS_ENCODER", raising=False)
+    assert runtime.model_weights(Runtime(), "transformer") == WEIGHTS_DIR / "hypergs_transformer.json"
+    assert runtime.transformer_available(Runtime()) and runtime.model_weights(Runtime(), "conv") is None

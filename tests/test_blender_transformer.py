@@ -108,8 +108,10 @@ def run_session(zip_path, work, out_path):
         out = dict(bundled=dialog())  # no folder set: the bundled transformer
         core_runtime = addon_module(addon, "hypergs_blender.runtime")
         bundled_dir, core_runtime.WEIGHTS_DIR = core_runtime.WEIGHTS_DIR, Path(work) / "bundles_none"
-        out.update(without_weights=dialog())  # a build that bundles none
-        core_runtime.WEIGHTS_DIR = bundled_dir
+        try:
+            out.update(without_weights=dialog())  # a build that bundles none
+        finally:
+            core_runtime.WEIGHTS_DIR = bundled_dir
         prefs.transformer_weights = weights
         layout = Recorder()
         type(prefs).draw(types_namespace(layout=layout, **{k: getattr(prefs, k) for k in

@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 import torch
 
+from hypergs_blender.encode import EncodeSettings, FloorEncoder
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.gaussians import (GaussianVideo, covariance, grid_anchors, inverse_covariance,
                                        render_inputs, stretch_params)
+from hypergs_blender.io.hgs import load_hgs, save_hgs
 from hypergs_blender.io.npz import load_npz, save_npz
 from hypergs_blender.raster import rasterize_reference
 
@@ -32,8 +34,6 @@ def test_save_load_round_trip(tmp_path):
 def test_a_panorama_lattice_round_trips(tmp_path):
     """An 8192 x 1024 panorama at Standard (cells of 6 px) is a 1365 x 170 lattice: wider than 1024
     cells, which the grid field once refused after the encode had started."""
-    from hypergs_blender.encode import EncodeSettings, FloorEncoder
-    from hypergs_blender.io.hgs import load_hgs, save_hgs
     layout = EncodeSettings.choose(quality="standard").layout(8192, 1024, FloorEncoder())
     assert layout.cols > 1024
     video = GaussianVideo(random_params(1, 4), 8192, 1024, grid=(layout.cols, layout.rows))

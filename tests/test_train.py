@@ -229,3 +229,53 @@ def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
     args.lr_scale = {"wrap": 3.0}
     with pytest.raises(HyperGSError, match="wrap not parts of this network"):
         train.run(args)
+
+
+def test_psnr_loss_follows_the_mean_log_mse_and_keeps_an_mse_size():
+    per_frame = torch.tensor([1e-4, 4e-3, 2.5e-2, 0.0], dtype=torch.float64, requires_grad=True)
+    train.frame_loss(per_frame, "psnr").backward()
+    shifted = per_frame.detach() + train.PSNR_LOSS_FLOOR
+    # the gradient of the mean log MSE (of the frames' mean PSNR), times their harmonic mean
+    torch.testing.assert_close(per_frame.grad, (1 / shifted) / len(shifted) / torch.mean(1 / shifted))
+    assert per_frame.grad[0] > 30 * per_frame.grad[2]  # the smooth frame counts most
+    value = train.frame_loss(per_frame.detach(), "psnr")
+    assert float(per_frame.detach().min()) <= value <= float(per_frame.detach().mean())
+    assert train.frame_loss(per_frame.detach(), "mse") == pytest.approx(float(per_frame.detach().mean()))
+
+
+@pytest.mark.parametrize("preset", ["conv", "small"])
+def test_training_loss_weighs_each_frames_own_mse(preset):
+    torch.manual_seed(0)
+    model = (ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))) if preset == "conv"
+             else HyperGS(TransformerConfig(**TINY, max_gaussians=64)))
+    frames = torch.rand(2, 1 if preset == "conv" else 2, 32, 32, 3)
+    frames[0] = 0.5  # a flat clip next to a noisy one
+    lattice = None if preset == "conv" else train.lattice_for_step(64, 0, 0, 0, 2)
+    _, mse, _ = train.training_loss(model, frames, lattice, None)
+    loss, psnr_mse, _ = train.training_loss(model, frames, lattice, None, loss="psnr")
+    # the slow reference: each clip encoded, each of its frames rendered and measured on its own
+    per_frame = []
+    for b in range(frames.shape[0]):
+        if preset == "conv":
+            params = model(frames[b])
+        else:
+            anchors = torch.from_numpy(train.lattice_anchors(lattice[0], lattice[1][b:b + 1]))
+            params = model(frames[b:b + 1], anchors, torch.tensor([2.0 / lattice[0]]))[0]
+        for t in range(frames.shape[1]):
+            render = render_torch(params[t:t + 1], 32, 32, 32, 32)
+            per_frame.append(torch.mean((render - frames[b, t:t + 1]) ** 2))
+    per_frame = torch.stack(per_frame)
+    torch.testing.assert_close(mse, per_frame.mean())
+    torch.testing.assert_close(psnr_mse, mse)
+    torch.testing.assert_close(loss, train.frame_loss(per_frame, "psnr"))
+    assert loss < 0.5 * mse  # the flat clip's small error weighs most
+
+
+def test_loss_option_defaults_per_design_and_refuses_others():
+    parser = argparse.ArgumentParser()
+    train_commands.add_commands(parser.add_subparsers())
+    assert parser.parse_args(["train", "--loss", "psnr"]).loss == "psnr"
+    assert parser.parse_args(["train"]).loss is None  # train.ARCH_DEFAULTS decides
+    assert {d["loss"] for d in train.ARCH_DEFAULTS.values()} <= set(train.LOSSES)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["train", "--loss", "l1"])

@@ -8,6 +8,7 @@ from ..model import PRESETS
 from ..network import BUNDLED_NAME, DEFAULT_NAMES, WEIGHTS_DIR
 from ..training.data import DEFAULT_SPEC
 from ..training.sources import DEFAULT_ROOT
+from ..training.train import LOSSES
 from . import options
 
 
@@ -44,6 +45,10 @@ def add_commands(subparsers) -> None:
                         "e.g. stem=3 (a new stem on warm-started blocks)")
     p.add_argument("--clip", type=options.positive_float, default=None,
                    help="gradient norm clipping (conv 0.5, transformer 1.0)")
+    p.add_argument("--loss", choices=LOSSES, default=None,
+                   help="the data term: mse, the pixels' mean squared error; psnr, the frames' mean PSNR (each "
+                        "frame's error weighted by the inverse of its MSE: smooth frames count as much in dB "
+                        "as detailed ones) (conv mse, transformer mse)")
     p.add_argument("--warmup", type=options.non_negative_int, default=200)
     p.add_argument("--min-lr-ratio", type=options.fraction, default=0.1)
     p.add_argument("--gaussians", default="64:1024", type=options.gaussian_range,

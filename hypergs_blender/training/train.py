@@ -46,7 +46,11 @@ from .sources import make_batch
 EVAL_SIZE = 256  # evaluation frames: 256 x 256
 EVAL_CELLS = (8, 4)  # source pixels per Gaussian at evaluation: 1024 and 4096 Gaussians on 256 x 256
 # Options whose default depends on the design (each measured on it): learning rate, gradient clipping, clips per step.
-ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8), "transformer": dict(lr=2e-3, clip=1.0, batch=4)}
+ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8, loss="mse"),
+                 "transformer": dict(lr=2e-3, clip=1.0, batch=4, loss="mse")}
+LOSSES = ("mse", "psnr")
+# psnr loss: a frame's error counts down to this MSE (50 dB; an 8-bit frame's own rounding is ~59 dB)
+PSNR_LOSS_FLOOR = 1e-5
 
 
 def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float) -> float:
@@ -101,12 +105,24 @@ def lattice_for_step(n: int, seed: int, step: int, rank: int, clips: int) -> tup
     return k, np.random.default_rng([seed, step, rank, 104729]).random((clips, 2), dtype=np.float32)
 
 
+def frame_loss(per_frame_mse: torch.Tensor, loss: str) -> torch.Tensor:
+    """The data term from the frames' MSEs. mse: their mean. psnr: the gradient of the frames' mean
+    PSNR (of mean log MSE): each frame's MSE weighted by the inverse of its own (fixed in the step),
+    the weights normalised to mean 1 so that the loss keeps an MSE's size next to the regularizers.
+    Under plain MSE a smooth frame at 40 dB weighs a tenth of a detailed one at 30 dB, so the
+    network never learns to render it flat; eval reports the frames' mean PSNR."""
+    if loss == "mse":
+        return per_frame_mse.mean()
+    weights = 1 / (per_frame_mse.detach() + PSNR_LOSS_FLOOR)
+    return torch.mean(weights / weights.mean() * per_frame_mse)
+
+
 def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] | None, regularizer,
-                  inputs: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, dict]:
+                  inputs: torch.Tensor | None = None, loss: str = "mse") -> tuple[torch.Tensor, torch.Tensor, dict]:
     """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]; lattice: the transformer's
     (k, phase per clip), see lattice_for_step (the conv network's Gaussians are its cells). inputs: what
     the (conv) network sees instead of the frames, e.g. the frames with noise (the render is compared
-    with the frames)."""
+    with the frames). loss: the data term, one of LOSSES (frame_loss)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
@@ -115,14 +131,15 @@ def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] |
         k, phase = lattice
         anchors = torch.from_numpy(lattice_anchors(k, phase)).to(frames.device)
         params = model(frames, anchors, torch.tensor([2.0 / k], device=frames.device)).float()
-    mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2)
+    per_frame_mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2, dim=(-3, -2, -1))
+    mse, data_loss = per_frame_mse.mean(), frame_loss(per_frame_mse, loss)
     if regularizer is None:
-        return mse, mse, {}
+        return data_loss, mse, {}
     # Scales in grid cells (the anchor spacing, size / k canvas pixels): the thresholds then hold for
     # every Gaussian count drawn (in canvas pixels the EMA, set by the steps with many small Gaussians,
     # penalised every Gaussian of a step with few large ones).
     reg_loss, stats = regularizer(params[..., 2:4] * (lattice[0] / size))
-    return mse + reg_loss, mse, stats
+    return data_loss + reg_loss, mse, stats
 
 
 def warm_start(model, path, rank: int = 0) -> None:
@@ -284,7 +301,7 @@ def run(args) -> None:
             with amp:
                 if teacher is None:
                     inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
-                    loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs)
+                    loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs, args.loss)
                 else:
                     loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)

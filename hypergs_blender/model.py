@@ -39,7 +39,10 @@ Two parametrizations of the Gaussian tokens and heads (`TransformerConfig.parame
   embedding of the frame's pixels in its grid cell (a k x k bilinear sample spanning the cell: the
   Gaussian's own neighbourhood at its own scale, which makes colours a nearly local, learnable
   linear function of the pixels, as the least-squares colours are), its mean is
-  tanh(atanh(a_k) + cell * h) (an offset from the anchor, in grid cells), its scale is
+  a_k + cell * offset_range * tanh(h / offset_range) (an offset from the anchor of at most
+  `offset_range` grid cells, as the conv network's; older weights, offset_range 0:
+  tanh(atanh(a_k) + cell * h), which pins the outer ring: 1 - a_k^2 of a cell per unit of h, 6 % at
+  N = 1000, so the frame's outermost pixels stayed dark), its scale is
   (|h| + eps) x the grid spacing, and its colour is signed: the mean of its cell's pixel samples
   times the gain that makes overlapping kernels sum to the image, plus h. At initialisation
   it is therefore the grid floor, and training only has to learn corrections; any N works with one
@@ -77,6 +80,7 @@ class TransformerConfig:
     max_gaussians: int = 3000  # learned tokens of the "paper" parametrization
     rope_base: float = 100.0
     cell_samples: int = 4  # "local": k x k pixel samples per Gaussian cell
+    offset_range: float = 1.0  # "local": grid cells a mean may move from its anchor (0: the tanh map of older weights)
 
     @property
     def grid(self) -> int:
@@ -277,8 +281,12 @@ class HyperGS(nn.Module):
             scales = h[..., 2:4].abs() + SCALE_EPS
             colours = torch.sigmoid(h[..., 5:8])
         else:
-            base = torch.atanh(anchors.clamp(-0.999, 0.999))[:, None]  # [1 or B, 1, N, 2]
-            means = torch.tanh(base + cell * h[..., 0:2])
+            if cfg.offset_range > 0:
+                offset = cfg.offset_range * torch.tanh(h[..., 0:2] / cfg.offset_range)
+                means = anchors[:, None] + cell * offset  # [1 or B, 1, N, 2] + [B, T, N, 2]
+            else:
+                base = torch.atanh(anchors.clamp(-0.999, 0.999))[:, None]
+                means = torch.tanh(base + cell * h[..., 0:2])
             spacing_px = cell * (0.5 * cfg.canvas)
             scales = (h[..., 2:4].abs() + SCALE_EPS) * spacing_px
             cell_mean = cell_pixels.mean(2).reshape(b, t, n, 3)
@@ -387,6 +395,7 @@ def build_model(config: dict) -> nn.Module:
     if arch == "conv":
         return ConvGS(ConvConfig(**config))
     if arch == "transformer":
+        config.setdefault("offset_range", 0.0)  # cards and checkpoints from before the field: the tanh map
         return HyperGS(TransformerConfig(**config))
     raise ValueError(f"unknown network architecture {arch!r}")
 

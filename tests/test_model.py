@@ -41,6 +41,30 @@ def test_local_model_starts_at_the_grid_floor():
     torch.testing.assert_close(out[..., 2:4], torch.full_like(out[..., 2:4], 4.8), atol=0.15, rtol=0)
 
 
+@pytest.mark.parametrize("offset_range", [1.0, 0.0])
+def test_local_means_move_as_far_at_the_frames_edge_as_inside(offset_range):
+    """A Gaussian of the outer ring must reach the frame's edge: an offset h moves every mean by
+    cell * R tanh(h / R), at the border as in the middle. The tanh map of older weights (R = 0) moved
+    the outer ring 1 - a^2 of that (the frame's outermost pixels stayed dark)."""
+    model = HyperGS(TransformerConfig(**TINY, offset_range=offset_range))
+    with torch.no_grad():
+        model.head.bias[0:2] = 0.5
+    anchors, cell = anchor_inputs(64)  # 8 x 8: the outer ring at +-7/8
+    means = model(torch.full((1, 4, 32, 32, 3), 0.5), anchors, cell)[0, 0, :, 0:2]
+    moved = (means - anchors) / cell  # in grid cells, towards +x and +y
+    if offset_range:
+        torch.testing.assert_close(moved, torch.full_like(moved, math.tanh(0.5)))
+    else:  # the right column, moving out towards the frame's edge, against the middle ones
+        outward, inner = moved[anchors[:, 0] > 0.8, 0], moved[anchors[:, 0].abs() < 0.5, 0]
+        assert outward.max() < 0.5 * inner.min()
+
+
+def test_cards_from_before_offset_range_load_with_the_tanh_map():
+    config = dataclasses.asdict(TransformerConfig(**TINY))
+    assert config.pop("offset_range") == 1.0  # new runs reach the edge
+    assert build_model(config).cfg.offset_range == 0.0
+
+
 def test_presets():
     assert 40e6 < count_parameters(HyperGS(PRESETS["paper"])) < 55e6
     assert count_parameters(HyperGS(PRESETS["small"])) < 5e6

@@ -7,6 +7,7 @@ import pytest
 
 from hypergs_blender import optional, runtime
 from hypergs_blender.errors import HyperGSError
+from hypergs_blender.network import WEIGHTS_DIR
 from hypergs_blender.runtime import AUTO, PROVIDERS, Runtime, describe_encoder, make_encoder, providers_for
 
 CUDA, DML, COREML, CPU = PROVIDERS
@@ -80,7 +81,6 @@ def test_the_transformer_loads_from_the_folder_set_and_only_from_a_transformer(t
     assert encoder.name == "transformer-onnx" and describe_encoder(encoder, chosen) == "transformer-onnx on CPU (1 thread)"
     assert make_encoder(chosen, "transformer") is encoder and len(session_cache) == 1
     assert make_encoder(chosen, "conv").name == "network-onnx" and len(session_cache) == 1  # one network in memory
-    from hypergs_blender.network import WEIGHTS_DIR
     (tmp_path / "conv").mkdir()
     shutil.copy(WEIGHTS_DIR / "hypergs.json", tmp_path / "conv")
     conv = Runtime(transformer_weights=str(tmp_path / "conv"))  # a folder of the conv network alone
@@ -95,7 +95,6 @@ def test_the_transformer_loads_from_the_folder_set_and_only_from_a_transformer(t
 
 
 def test_the_bundled_transformer_is_offered_without_a_folder(monkeypatch):
-    from hypergs_blender.network import WEIGHTS_DIR
     monkeypatch.delenv("HYPERGS_ENCODER", raising=False)
     assert runtime.model_weights(Runtime(), "transformer") == WEIGHTS_DIR / "hypergs_transformer.json"
     assert runtime.transformer_available(Runtime()) and runtime.model_weights(Runtime(), "conv") is None

@@ -180,7 +180,7 @@ def test_distill_trains_all_but_the_head_towards_the_teachers_features(tmp_path,
     unexplained = [r["unexplained"] for r in records if "unexplained" in r]
     assert len(unexplained) == 30 and np.mean(unexplained[-5:]) < 0.7 * np.mean(unexplained[:5])
     with pytest.raises(Exception, match="--distill needs --init-from"):
-        args.init_from = None
+        args.out, args.init_from = tmp_path / "new", None
         train.run(args)
 
 
@@ -210,6 +210,32 @@ def test_config_overrides_a_new_runs_preset(tmp_path, monkeypatch, capsys):
     main(argv + ["--config", "mid=4", "stem_level=cell"])
     config = json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])
     assert config["mid"] == 4 and config["stem_level"] == "cell" and config["width"] == 8
+
+
+def test_a_resume_keeps_the_runs_options_but_those_given_again(tmp_path, monkeypatch, capsys):
+    from hypergs_blender.commands.cli import main
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setitem(train.PRESETS, "small", TransformerConfig(**TINY))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    run = ["train", "--out", str(tmp_path / "run")]
+    main(run + ["--data", "procedural:1", "--steps", "2", "--batch", "1", "--size", "32", "--warmup", "1",
+                "--lr", "3e-4", "--loss", "psnr", "--seed", "5", "--threads", "1"])
+
+    def recorded():
+        state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+        return int(state["step"]), json.loads(state["args"])
+    main(run + ["--steps", "3"])  # the schedule's length alone: lr, loss, data, seed and size stay the run's
+    step, args = recorded()
+    assert step == 3 and (args["lr"], args["loss"], args["seed"], args["size"], args["data"]) == (
+        3e-4, "psnr", 5, 32, "procedural:1")
+    assert "the run's options but --steps 3 (was 2)\n" in capsys.readouterr().out
+    main(run + ["--steps", "4", "--lr", "1e-4", "--loss", "psnr"])
+    step, args = recorded()
+    assert step == 4 and args["lr"] == 1e-4 and args["loss"] == "psnr"
+    assert "the run's options but --steps 4 (was 3), --lr 0.0001 (was 0.0003)\n" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # a run keeps its network
+        main(run + ["--steps", "5", "--preset", "small"])
+    assert "--preset small: the run in" in capsys.readouterr().err and recorded()[0] == 4
 
 
 def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):

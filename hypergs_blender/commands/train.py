@@ -2,6 +2,7 @@
 bundled weights) and `hypergs export-onnx` (weights -> ONNX model)."""
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from ..model import PRESETS
@@ -12,8 +13,20 @@ from ..training.train import LOSSES
 from . import options
 
 
+class _StoreGiven(argparse._StoreAction):
+    """argparse's store, also naming the option in `args.given`: a resumed run takes the options its
+    command line does not give from its checkpoint (training.train.resume_options)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        super().__call__(parser, namespace, values, option_string)
+        namespace.given = namespace.given | {self.dest}
+
+
 def add_commands(subparsers) -> None:
-    p = subparsers.add_parser("train", help="train the HyperGS network")
+    p = subparsers.add_parser("train", help="train the HyperGS network; with the --out of a run, continue it with "
+                                            "the options it started with, but those given again")
+    p.register("action", None, _StoreGiven)
+    p.set_defaults(given=frozenset())
     p.add_argument("--out", default="runs/small", type=options.run_folder,
                    help="run folder (checkpoint, log); resumes from it")
     p.add_argument("--preset", default="conv", choices=sorted(PRESETS),

@@ -51,6 +51,10 @@ ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8, loss="mse"),
 LOSSES = ("mse", "psnr")
 # psnr loss: a frame's error counts down to this MSE (50 dB; an 8-bit frame's own rounding is ~59 dB)
 PSNR_LOSS_FLOOR = 1e-5
+# Options of this sitting (the machine, how long), not of the run: a resume never takes them from the checkpoint.
+SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "given", "command"})
+# Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
+FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale")
 
 
 def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float) -> float:
@@ -208,8 +212,38 @@ def distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tenso
     return loss, mse, {"unexplained": round(float(loss.detach()), 5)}
 
 
+def resume_options(args, recorded: dict) -> list[str]:
+    """A resumed run keeps the options it started with (`recorded`, the checkpoint's), but for the sitting's
+    own (SITTING_OPTIONS) and those this command line gives (`args.given`, commands/train.py; a namespace
+    without it gives all): `--steps 4000` alone continues the run's schedule, data, loss and learning rate.
+    Sets them on args; returns the given ones that differ from the record ("--lr 0.0005 (was 0.0003)").
+    Raises HyperGSError where a given option would change the network (FIXED_OPTIONS)."""
+    given = getattr(args, "given", None)
+    given = set(vars(args)) if given is None else set(given)
+    changed = []
+    for key, was in recorded.items():
+        if key in SITTING_OPTIONS or not hasattr(args, key):
+            continue
+        if key not in given:
+            setattr(args, key, was)
+            continue
+        now = json.loads(json.dumps(_plain({key: getattr(args, key)})))[key]
+        if now == was or (key in ("config", "lr_scale") and not now and not was):
+            continue
+        flag = "--" + key.replace("_", "-")
+        if key in FIXED_OPTIONS:
+            raise HyperGSError(f"{flag} {now}: the run in {args.out} was started with {flag} {was}, and a run keeps "
+                               f"its network; start a new run (another --out), e.g. with --init-from its export")
+        changed.append(f"{flag} {now} (was {was})")
+    return changed
+
+
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
+    out = Path(args.out)
+    checkpoint_path = out / "checkpoint.pt"
+    resume = load_checkpoint(checkpoint_path) if checkpoint_path.exists() else None
+    changed = resume_options(args, json.loads(resume["args"])) if resume else []
     if args.distill and not args.init_from:
         raise HyperGSError("--distill needs --init-from: a warm start whose head reads the teacher's features")
     distributed = "RANK" in os.environ
@@ -222,10 +256,7 @@ def run(args) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    checkpoint_path = out / "checkpoint.pt"
-    resume = load_checkpoint(checkpoint_path) if checkpoint_path.exists() else None
     config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])
     if not resume and args.parametrization:
         config["parametrization"] = args.parametrization
@@ -251,8 +282,7 @@ def run(args) -> None:
     regularizer = None if conv else AdaptiveRegularizer(s0=4.0, scale_ceiling=10.0).to(device)
     if conv:
         # a run keeps the parameter groups it started with (a checkpoint's optimizer state needs them)
-        lr_scale = dict(json.loads(resume["args"]).get("lr_scale") or {}) if resume else dict(args.lr_scale)
-        optimizer = torch.optim.AdamW(lr_groups(model, lr_scale), lr=args.lr, weight_decay=1e-4)
+        optimizer = torch.optim.AdamW(lr_groups(model, dict(args.lr_scale or {})), lr=args.lr, weight_decay=1e-4)
     else:
         optimizer = Lamb(parameter_groups(model), lr=args.lr, weight_decay=0.01)
     step, wall, cpu = 0, 0.0, 0.0
@@ -274,7 +304,8 @@ def run(args) -> None:
     log = open(out / "log.jsonl", "a") if rank == 0 else None
     if rank == 0:
         print(f"training {config['arch']} model, {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
-              f"parameters, from step {step} of {args.steps} on {device} -> {out}", flush=True)
+              f"parameters, from step {step} of {args.steps} on {device} -> {out}"
+              + (f"; the run's options but {', '.join(changed)}" if changed else ""), flush=True)
 
     def save():
         state = dict(model=model.state_dict(), optimizer=optimizer.state_dict(), step=step, wall_seconds=wall,
@@ -346,7 +377,7 @@ def run(args) -> None:
 
 
 def _plain(values: dict) -> dict:
-    return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items() if not callable(v)}
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items() if not callable(v) and k != "given"}
 
 
 class Evaluator:

@@ -82,6 +82,26 @@ def test_files_left_by_an_interrupted_command_are_removed(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_streamed_write_removes_what_killed_writers_of_its_output_left(tmp_path):
+    import subprocess
+    import sys
+    target = tmp_path / "a.hgs"
+    code = "import os; from hypergs_blender.io import files; files.AtomicOutput(os.environ['T']).open().write(b'x'); os._exit(9)"
+    subprocess.run([sys.executable, "-c", code], env={**os.environ, "T": str(target)}, check=False)
+    killed = list(tmp_path.iterdir())
+    assert len(killed) == 1 and killed[0].name.startswith(".a.hgs.") and killed[0].name.endswith(".part.hgs")
+    running = tmp_path / f".a.hgs.{files._HOST}-{os.getpid()}-0123abcd.part.hgs"  # this process: running
+    elsewhere = tmp_path / ".a.hgs.otherhost-1-0123abcd.part.hgs"  # another host's, on a shared folder
+    other_output = tmp_path / f".b.hgs.{killed[0].name.split('.')[3]}.part.hgs"
+    for path in (running, elsewhere, other_output):
+        path.write_bytes(b"x")
+    files.AtomicOutput(target).discard()  # a whole-file write does not list the folder
+    assert killed[0].exists()
+    out = files.AtomicOutput(target, streamed=True)
+    out.discard()
+    assert sorted(tmp_path.iterdir()) == sorted([running, elsewhere, other_output])
+
+
 def test_atomic_output_keeps_the_umask_permissions(tmp_path):
     with files.AtomicOutput(tmp_path / "a.json") as temp:
         temp.write_text("{}")

@@ -7,16 +7,26 @@ symbolic link at the output's name instead of writing through it, so a link can 
 onto another file. `check_output` refuses, before any work starts, outputs that could not be written
 or would destroy an input: a wrong suffix, a missing or unwritable folder, a folder where a file is
 wanted, the same file as an input (also through links).
+
+A process killed outright (SIGKILL, a crash, the machine's power) cannot remove its temporary file:
+the name carries the host and process id (`.clip.hgs.HOST-PID-RANDOM.part.hgs`), and the next streamed
+write of the same output (a clip: minutes of work, a file of any size) removes those of processes of this
+host that no longer run (`_remove_stale`; not for every write: it lists the folder, which may hold a
+frame sequence). On Windows, where no process id is checked here, they stay until removed by hand.
 """
 from __future__ import annotations
 
+import glob
 import os
+import re
 import secrets
+import socket
 from pathlib import Path
 
 from ..errors import HyperGSError
 
 _pending: set[Path] = set()  # temporary files not yet committed or discarded
+_HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
 
 
 def check_output(path, suffixes=(), inputs=()) -> Path:
@@ -74,17 +84,20 @@ class AtomicOutput:
         with AtomicOutput(path) as temp:      # a path: write it whole (np.savez, an image, USD)
             write(temp)                       # committed at the end of the block, discarded on error
 
-        out = AtomicOutput(path)              # streamed: out.open() is the temporary file
-        ...; out.commit()  (or out.discard())
+        out = AtomicOutput(path, streamed=True)   # out.open() is the temporary file; also removes
+        ...; out.commit()  (or out.discard())     # what killed writers of `path` left (_remove_stale)
 
     OSError while writing or renaming becomes HyperGSError naming `path` (disk full, read-only
     folder). The block should only write: any OSError in it is reported as a write error."""
 
-    def __init__(self, path, inputs=()):
+    def __init__(self, path, inputs=(), streamed: bool = False):
         self.path = check_output(path, inputs=inputs)
         self.file = None
+        if streamed:
+            _remove_stale(self.path)
         for _ in range(100):
-            self.temp = self.path.with_name(f".{self.path.name}.{secrets.token_hex(4)}.part{self.path.suffix}")
+            self.temp = self.path.with_name(f".{self.path.name}.{_HOST}-{os.getpid()}-{secrets.token_hex(4)}"
+                                            f".part{self.path.suffix}")
             try:
                 os.close(os.open(self.temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
                 break
@@ -162,6 +175,33 @@ class StreamingWriter:
             self.close()
         else:
             self.abort()
+
+
+def _process_runs(pid: int) -> bool:
+    """Whether process `pid` of this host runs (True where that cannot be told: Windows, whose
+    os.kill would terminate it)."""
+    if os.name == "nt":
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+def _remove_stale(path: Path) -> None:
+    """Remove the temporary files of `path` left by killed processes of this host (see the module's
+    docstring); those of running processes and of other hosts (a shared folder) stay."""
+    prefix, suffix = f".{path.name}.", f".part{path.suffix}"
+    for temp in path.parent.glob(glob.escape(prefix) + "*" + glob.escape(suffix)):
+        owner = temp.name[len(prefix):-len(suffix)].rsplit("-", 2)
+        if len(owner) == 3 and owner[0] == _HOST and owner[1].isdigit() and not _process_runs(int(owner[1])):
+            try:
+                temp.unlink()
+            except OSError:
+                pass
 
 
 def discard_pending() -> None:

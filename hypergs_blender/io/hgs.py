@@ -222,7 +222,7 @@ class HgsWriter(StreamingWriter):
         self._pending: list[np.ndarray] = []  # quantized frames of the group being filled
         self._entries: list[tuple[int, int, int, int]] = []
         header = self.header.pack()
-        self._output = AtomicOutput(self.path)
+        self._output = AtomicOutput(self.path, streamed=True)
         self._file = self._output.open()
         self._write(header)
         self._offset = len(header)

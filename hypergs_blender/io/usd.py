@@ -82,7 +82,7 @@ class UsdWriter(StreamingWriter):
         self.num_gaussians, self.start_frame, self.prim_path = int(num_gaussians), int(start_frame), prim_path
         self.num_frames = 0
         self._crate = self.path.suffix.lower() != ".usda"
-        self._output = AtomicOutput(self.path)
+        self._output = AtomicOutput(self.path, streamed=True)
         try:
             self._stage = Usd.Stage.CreateNew(str(self._output.temp))
             if self._stage is None:

@@ -208,8 +208,8 @@ class TransformerEncoder:
 
 def transformer_geometry(cfg, gaussians: tuple[int, int] | None = None) -> dict:
     """What TransformerEncoder needs of a transformer's config (model.TransformerConfig), as its card
-    stores it: the canvas, clip length and patch; the context margin of its windows (a quarter of the
-    canvas for the "local" parametrization, whose Gaussians belong to anchors; none for "paper"); the Gaussians
+    stores it: the canvas, clip length and patch; the context margin of its windows (5/16 of the
+    canvas, in whole patches, for the "local" parametrization, whose Gaussians belong to anchors; none for "paper"); the Gaussians
     per tile it was trained for (default: up to one per 2 x 2 canvas pixels, or the "paper"
     parametrization's learned tokens). The margin is what the trained model needs: its Gaussians within
     ~30 px of a window's edge are unlike those of the same place seen from inside. Measured seam ratios

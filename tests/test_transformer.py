@@ -250,4 +250,3 @@ def test_window_margins_are_whole_patches_beyond_a_quarter_of_the_canvas(preset)
     local = transformer_geometry(replace(cfg, parametrization="local"))
     assert local["margin"] % cfg.patch == 0 and cfg.canvas // 4 < local["margin"] < cfg.canvas // 2
     assert transformer_geometry(replace(cfg, parametrization="paper"))["margin"] == 0
-

@@ -395,8 +395,8 @@ def build_model(config: dict) -> nn.Module:
     if arch == "conv":
         return ConvGS(ConvConfig(**config))
     if arch == "transformer":
-        config.setdefault("offset_range", 0.0)  # cards and checkpoints from before the field: the tanh map
-        return HyperGS(TransformerConfig(**config))
+        # cards and checkpoints from before the field: the tanh map (the caller's dict stays as it was)
+        return HyperGS(TransformerConfig(**{"offset_range": 0.0, **config}))
     raise ValueError(f"unknown network architecture {arch!r}")
 
 

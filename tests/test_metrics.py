@@ -42,6 +42,19 @@ def test_flat_ripple_sees_a_lattice():
     assert metrics.flat_ripple(flat, flat, window=16)["render_std"] == pytest.approx(0.0, abs=1e-3)
 
 
+def test_flat_ripple_means_over_the_videos_blocks():
+    from hypergs_blender.commands.evaluate import mean_flat_ripple
+    one = {"blocks": 1, "source_std": 0.4, "render_std": 3.0}  # a video with a single flat block
+    many = {"blocks": 99, "source_std": 0.2, "render_std": 0.5}
+    none = {"blocks": 0, "source_std": None, "render_std": None}
+    mean = mean_flat_ripple([one, many, none])
+    assert mean["flat_ripple_blocks"] == 100
+    assert mean["flat_ripple_render_std"] == pytest.approx((3.0 + 99 * 0.5) / 100)  # not (3.0 + 0.5) / 2
+    assert mean["flat_ripple_source_std"] == pytest.approx((0.4 + 99 * 0.2) / 100)
+    assert mean_flat_ripple([none]) == {"flat_ripple_render_std": None, "flat_ripple_source_std": None,
+                                        "flat_ripple_blocks": 0}
+
+
 def test_edge_bias_sees_dark_edges():
     target = smooth_frames()
     dark = target.copy()

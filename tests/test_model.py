@@ -137,7 +137,7 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
     return model.eval()
 
 
-@pytest.mark.parametrize("preset", ["conv", "conv-cell"])
+@pytest.mark.parametrize("preset", ["conv", "conv-round2"])
 def test_conv_model_starts_at_the_grid_floor(preset):
     frames = np.random.default_rng(0).random((2, 24, 40, 3), dtype=np.float32)
     with torch.no_grad():

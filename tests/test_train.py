@@ -165,9 +165,9 @@ def test_distill_trains_all_but_the_head_towards_the_teachers_features(tmp_path,
         teacher.head.weight.normal_(0, 0.05)
         teacher.encoder[0][0].b.weight.normal_(0, 0.05)
     save_weights(teacher, tmp_path, "teacher")
-    monkeypatch.setitem(train.PRESETS, "conv-cell", ConvConfig(width=8, stem=16, blocks=(1,), stem_level="cell"))
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=16, blocks=(1,), stem_level="cell"))
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
-    args = training_args(tmp_path / "run", 30, "conv-cell")
+    args = training_args(tmp_path / "run", 30, "conv")
     args.init_from = args.distill = tmp_path / "teacher.safetensors"
     args.lr = 1e-2
     train.run(args)

@@ -57,9 +57,7 @@ def run(args) -> None:
     mean = {k: float(np.mean([r[k] for r in rows])) for k in keys}
     seams = [r["seam_ratio"] for r in rows if r["seam_ratio"] is not None]
     mean["seam_ratio"] = float(np.mean(seams)) if seams else None
-    ripple = [r["flat_ripple"] for r in rows if r["flat_ripple"]["blocks"]]
-    mean["flat_ripple_render_std"] = float(np.mean([f["render_std"] for f in ripple])) if ripple else None
-    mean["flat_ripple_source_std"] = float(np.mean([f["source_std"] for f in ripple])) if ripple else None
+    mean.update(mean_flat_ripple([r["flat_ripple"] for r in rows]))
     temporal = [r["temporal"] for r in rows if "temporal" in r]
     if temporal:
         still = [t["still_change"] for t in temporal if t["still_change"]["render"] is not None]
@@ -85,3 +83,13 @@ def run(args) -> None:
               + (f"delta-PSNR {t['delta_psnr']:.2f} dB  " if t else "")
               + (f"still change {still:.2f}/255  " if still is not None else "")
               + f"encode {r['encode_fps']:7.2f} fps  decode {r['decode_fps']:7.1f} fps")
+
+
+def mean_flat_ripple(ripples: list[dict]) -> dict:
+    """The videos' flat-ripple figures (metrics.flat_ripple) over all their flat blocks together, as the
+    still change is over all still pixels: a video with one flat block counts as one block, not as much
+    as a video with hundreds."""
+    ripples = [f for f in ripples if f["blocks"]]
+    blocks = [f["blocks"] for f in ripples]
+    return {f"flat_ripple_{k}": float(np.average([f[k] for f in ripples], weights=blocks)) if ripples else None
+            for k in ("render_std", "source_std")} | {"flat_ripple_blocks": int(sum(blocks))}

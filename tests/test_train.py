@@ -297,6 +297,47 @@ def test_training_loss_weighs_each_frames_own_mse(preset):
     assert loss < 0.5 * mse  # the flat clip's small error weighs most
 
 
+def test_flat_pixel_weights_mark_the_flat_pixels_by_evals_criterion():
+    frames = torch.full((1, 2, 40, 40, 3), 0.5)
+    frames[0, 0, :, 20:] = torch.rand(40, 20, 3)  # frame 0: left half flat, right half noise
+    frames[0, 1, :, :, 1] += 0.5 / 255 * torch.randn(40, 40)  # frame 1: std 0.5/255, flat by the criterion
+    weights = train.flat_pixel_weights(frames, 9.0)
+    assert weights.shape == (1, 2, 40, 40, 1)
+    # the slow reference: each pixel's window (clipped at the frame's border), its std per channel
+    half = train.FLAT_WINDOW // 2
+    for t in range(2):
+        for y, x in [(0, 0), (20, 10), (20, 15), (20, 16), (5, 30), (39, 39)]:
+            window = frames[0, t, max(0, y - half):y + half + 1, max(0, x - half):x + half + 1].reshape(-1, 3)
+            flat = bool((window.std(0, unbiased=False) < train.FLAT_STD).all())
+            assert float(weights[0, t, y, x, 0]) == pytest.approx(10.0 if flat else 1.0), (t, y, x)
+    assert float(weights[0, 0, 20, 15, 0]) == 10.0 and float(weights[0, 0, 20, 16, 0]) == 1.0  # 5 px from the edge
+    assert bool((weights[0, 1] == 10.0).all())
+    assert bool((train.flat_pixel_weights(frames, 0.0) == 1.0).all())
+
+
+def test_flat_weight_raises_the_loss_of_an_error_in_a_flat_region_only():
+    torch.manual_seed(0)
+    model = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    frames = torch.rand(2, 1, 32, 32, 3)
+    frames[0] = 0.5  # a flat clip next to a noisy one
+    loss, mse, _ = train.training_loss(model, frames, None, None)
+    weighted, weighted_mse, _ = train.training_loss(model, frames, None, None, flat_weight=3.0)
+    torch.testing.assert_close(weighted_mse, mse)  # the log's mse is the plain one
+    # the slow reference: the flat clip's pixels weigh 4 (all flat), the noisy clip's 1 (none flat)
+    with torch.no_grad():
+        error = (render_torch(model(frames.reshape(2, 32, 32, 3)), 32, 32, 32, 32) - frames.reshape(2, 32, 32, 3)) ** 2
+    per_frame = error.mean(dim=(1, 2, 3))
+    torch.testing.assert_close(weighted.detach(), per_frame.mean())  # each frame's own mean: uniform weights cancel
+    frames[0, 0, :16] = torch.rand(16, 32, 3)  # half of the flat clip detailed: its flat half now counts 4x
+    flat_half = train.training_loss(model, frames, None, None, flat_weight=3.0)[0]
+    with torch.no_grad():
+        error = (render_torch(model(frames.reshape(2, 32, 32, 3)), 32, 32, 32, 32) - frames.reshape(2, 32, 32, 3)) ** 2
+        weights = train.flat_pixel_weights(frames.reshape(2, 32, 32, 3), 3.0)
+    assert 1.0 < float(weights[0].mean()) < 4.0
+    expected = torch.stack([(weights[i] * error[i]).sum() / (3 * weights[i].sum()) for i in range(2)]).mean()
+    torch.testing.assert_close(flat_half.detach(), expected)
+
+
 def test_loss_option_defaults_per_design_and_refuses_others():
     parser = argparse.ArgumentParser()
     train_commands.add_commands(parser.add_subparsers())

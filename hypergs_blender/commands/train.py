@@ -70,6 +70,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--input-noise", type=options.non_negative_float, default=0.0,
                    help="conv: the network sees each frame with Gaussian noise of a std up to this (1/255), "
                         "quantised to 8 bits; the render is compared with the clean frame")
+    p.add_argument("--flat-weight", type=options.non_negative_float, default=0.0,
+                   help="the squared error of a flat pixel (the clean frame's std under 1/255 around it, "
+                        "eval's flat-ripple criterion) counts 1 + this times a detailed one's: flat regions "
+                        "rendered flat")
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)

@@ -103,7 +103,7 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     model.load_state_dict(state["model"])
     args = json.loads(state["args"])
     keys = ("data", "batch", "size", "lr", "min_lr_ratio", "warmup", "clip", "steps", "seed", "preset", "config", "loss",
-            "input_noise")
+            "input_noise", "flat_weight")
     if model.cfg.arch == "transformer":
         keys = tuple(k for k in keys if k != "size") + ("gaussians",)  # it trains on its canvas, N per step
     train_args = {k: args[k] for k in keys if k in args}

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.distributed as dist
+import torch.nn.functional as F
 
 from ..errors import HyperGSError
 from ..gaussians import lattice_anchors
@@ -51,6 +52,11 @@ ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8, loss="mse"),
 LOSSES = ("mse", "psnr")
 # psnr loss: a frame's error counts down to this MSE (50 dB; an 8-bit frame's own rounding is ~59 dB)
 PSNR_LOSS_FLOOR = 1e-5
+# --flat-weight: a pixel is flat where the clean frame's std over the FLAT_WINDOW x FLAT_WINDOW pixels
+# around it is below FLAT_STD in every channel: eval's flat-ripple criterion (metrics.flat_ripple, 1/255)
+# at the training frames' scale (two 4-px cells).
+FLAT_STD = 1 / 255
+FLAT_WINDOW = 9
 # Options of this sitting (the machine, how long), not of the run: a resume never takes them from the checkpoint.
 SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "given", "command"})
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
@@ -121,12 +127,27 @@ def frame_loss(per_frame_mse: torch.Tensor, loss: str) -> torch.Tensor:
     return torch.mean(weights / weights.mean() * per_frame_mse)
 
 
+def flat_pixel_weights(frames: torch.Tensor, flat_weight: float) -> torch.Tensor:
+    """[..., H, W, 3] frames -> [..., H, W, 1] weights: 1 + flat_weight where the pixel is flat (FLAT_STD,
+    FLAT_WINDOW), else 1. Under plain MSE a ripple of 1/255 in a flat region costs a thousandth of a
+    30-dB frame's error, so nothing teaches the network to render flat regions flat."""
+    shape = frames.shape
+    x = frames.reshape(-1, *shape[-3:]).permute(0, 3, 1, 2).float()
+    mean = F.avg_pool2d(x, FLAT_WINDOW, 1, FLAT_WINDOW // 2, count_include_pad=False)
+    square = F.avg_pool2d(x * x, FLAT_WINDOW, 1, FLAT_WINDOW // 2, count_include_pad=False)
+    std = (square - mean * mean).clamp_min(0).sqrt()
+    flat = (std < FLAT_STD).all(1, keepdim=True).permute(0, 2, 3, 1)
+    return (1 + flat_weight * flat.to(frames.dtype)).reshape(*shape[:-1], 1)
+
+
 def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] | None, regularizer,
-                  inputs: torch.Tensor | None = None, loss: str = "mse") -> tuple[torch.Tensor, torch.Tensor, dict]:
+                  inputs: torch.Tensor | None = None, loss: str = "mse",
+                  flat_weight: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]; lattice: the transformer's
     (k, phase per clip), see lattice_for_step (the conv network's Gaussians are its cells). inputs: what
     the (conv) network sees instead of the frames, e.g. the frames with noise (the render is compared
-    with the frames). loss: the data term, one of LOSSES (frame_loss)."""
+    with the frames). loss: the data term, one of LOSSES (frame_loss), of the frames' MSEs weighted per pixel
+    by flat_pixel_weights when flat_weight > 0 (the returned mse stays the plain one, for the log)."""
     b, t, size = frames.shape[:3]
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
@@ -135,8 +156,14 @@ def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] |
         k, phase = lattice
         anchors = torch.from_numpy(lattice_anchors(k, phase)).to(frames.device)
         params = model(frames, anchors, torch.tensor([2.0 / k], device=frames.device)).float()
-    per_frame_mse = torch.mean((render_torch(params, size, size, size, size) - frames) ** 2, dim=(-3, -2, -1))
-    mse, data_loss = per_frame_mse.mean(), frame_loss(per_frame_mse, loss)
+    error = (render_torch(params, size, size, size, size) - frames) ** 2
+    per_frame_mse = torch.mean(error, dim=(-3, -2, -1))
+    if flat_weight > 0:
+        weights = flat_pixel_weights(frames, flat_weight)
+        data_loss = frame_loss(torch.sum(weights * error, dim=(-3, -2, -1)) / (3 * weights.sum(dim=(-3, -2, -1))), loss)
+    else:
+        data_loss = frame_loss(per_frame_mse, loss)
+    mse = per_frame_mse.mean()
     if regularizer is None:
         return data_loss, mse, {}
     # Scales in grid cells (the anchor spacing, size / k canvas pixels): the thresholds then hold for
@@ -332,7 +359,8 @@ def run(args) -> None:
             with amp:
                 if teacher is None:
                     inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
-                    loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs, args.loss)
+                    loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs, args.loss,
+                                                     args.flat_weight)
                 else:
                     loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)

@@ -114,7 +114,7 @@ def train(args):
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
     if (out / "checkpoint.pt").exists():
-        state = torch.load(out / "checkpoint.pt", weights_only=False)
+        state = torch.load(out / "checkpoint.pt", weights_only=True)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         step = state["step"]
@@ -154,7 +154,7 @@ def evaluate(args):
     n = args.gaussians
     if split_run:
         model = SplitConvGS(PRESETS["conv"])
-        model.load_state_dict(torch.load(Path(args.weights) / "checkpoint.pt", weights_only=False)["model"])
+        model.load_state_dict(torch.load(Path(args.weights) / "checkpoint.pt", weights_only=True)["model"])
         g = round(math.sqrt(n / (1 + 3 * args.fraction)))
         split_count = min(g * g, max(0, round((n - g * g) / 3)))
         work, count = GROUP * g, g * g + 3 * split_count

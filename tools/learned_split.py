@@ -32,8 +32,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from hypergs_blender.io.frames import read_frames
+from hypergs_blender.evaluate import read_eval_frames
 from hypergs_blender.io.images import resize_exact
+from hypergs_blender.metrics import psnr, psnr_from_mse
 from hypergs_blender.model import PRESETS, ConvGS
 from hypergs_blender.network import load_model
 from hypergs_blender.render import render_torch
@@ -138,7 +139,7 @@ def train(args):
             losses.append(float(loss.detach()))
             if step % 50 == 0:
                 log.write(json.dumps(dict(step=step, wall=round(time.time() - start, 1),
-                                          psnr=round(-10 * math.log10(np.mean(losses)), 3))) + "\n")
+                                          psnr=round(float(psnr_from_mse(np.mean(losses))), 3))) + "\n")
                 log.flush()
                 losses = []
             if step % 200 == 0 or step == args.steps:
@@ -163,20 +164,18 @@ def evaluate(args):
         g = round(math.sqrt(n))
         work, count = 4 * g, g * g
     model.eval()
-    psnrs = []
+    means = []
     for video in args.videos:
-        target = read_frames(video, args.frames, size=args.size)[0]
+        target = read_eval_frames(video, args.frames, size=args.size)
         inputs = torch.from_numpy(np.stack([resize_exact(f, work, work) for f in target]).astype(np.float32) / 255)
         if split_run:
             params, keep = model(inputs, top_split(group_detail(inputs), split_count))
             params = params[keep].reshape(len(target), count, 8)
         else:
             params = model(inputs)
-        render = render_torch(params, work, work, args.size, args.size).clamp(0, 1)
-        mse = ((render - torch.from_numpy(target).float() / 255) ** 2).mean(dim=(1, 2, 3))
-        psnrs.append(float((-10 * torch.log10(mse)).mean()))
+        means.append(float(psnr(render_torch(params, work, work, args.size, args.size), target / 255).mean()))
     print(json.dumps(dict(weights=str(args.weights), gaussians=count, fraction=args.fraction if split_run else 0.0,
-                          psnr=round(float(np.mean(psnrs)), 3), per_video=[round(p, 3) for p in psnrs])))
+                          psnr=round(float(np.mean(means)), 3), per_video=[round(p, 3) for p in means])))
 
 
 def main():

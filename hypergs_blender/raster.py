@@ -428,6 +428,7 @@ def _torch_function():
         return _FUNCTIONS["torch"]
     import torch
 
+    @torch.profiler.record_function("raster.plan")
     def plan(means, chol, width, height):
         budget = (1 << 24) if means.device.type == "cuda" else (1 << 20)
         x0, y0, chunks = _patch_plan(means.detach().reshape(-1, 2).to("cpu", torch.float64).numpy(),

@@ -225,20 +225,21 @@ def test_bench_designs_compares_at_equal_count_and_time(exported, moving_video):
 
 
 def test_train_then_export_a_transformer_run(tmp_path, monkeypatch, capsys):
-    """`hypergs train --preset small` (tiny here) then `hypergs export`: the design's own file name (the
-    bundled conv network's is never overwritten), a card with its arch and trained Gaussian range."""
+    """`hypergs train --preset small` (tiny here) then `hypergs export` (no --out: into the run's export
+    folder, never the bundled model's): the design's own file name, a card with its arch and trained
+    Gaussian range."""
     from hypergs_blender.training import train
     monkeypatch.setitem(train.PRESETS, "small", TransformerConfig(**TINY))
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     run = tmp_path / "run"
     main(["train", "--out", str(run), "--preset", "small", "--data", "procedural:1", "--steps", "2", "--batch", "1",
           "--gaussians", "9:100", "--warmup", "1", "--threads", "1"])
-    main(["export", str(run), "--out", str(tmp_path / "weights")])
-    assert "hypergs_transformer.{safetensors,json,onnx}" in capsys.readouterr().out
-    card = json.loads((tmp_path / "weights" / "hypergs_transformer.json").read_text())
+    main(["export", str(run)])
+    assert f"{run / 'export'}/hypergs_transformer.{{safetensors,json,onnx}}" in capsys.readouterr().out
+    card = json.loads((run / "export" / "hypergs_transformer.json").read_text())
     assert card["arch"] == "transformer" and card["geometry"]["gaussians"] == [9, 100]
     assert card["info"]["step"] == 2 and "regularizer" in card["info"]["train_args"]
-    encoder = resolve_encoder(weights=tmp_path / "weights", backend="onnx")
+    encoder = resolve_encoder(weights=run / "export", backend="onnx")
     assert encoder.gaussians == (9, 100) and encoder.canvas == 32
 
 

@@ -124,12 +124,13 @@ def train(args):
     start, first, losses = time.time(), step, []
     with open(out / "log.jsonl", "a") as log:
         while step < args.steps:
-            frames = torch.from_numpy(make_batch(sources, args.seed, step, 0, args.batch, 1, args.size))[:, 0]
+            batch = make_batch(sources, args.seed, step, 0, args.batch, 1, args.size)[:, 0]
+            frames, inputs = torch.from_numpy(batch), torch.from_numpy(with_noise(batch, 2.0, args.seed, step, 0))
             split = training_split(frames, np.random.default_rng([args.seed, step, 5]), fractions,
                                    args.all_split, args.none_split)
             for group in optimizer.param_groups:
                 group["lr"] = cosine_lr(step - first, args.steps - first, 100, args.lr, 0.05)
-            params, _ = model(with_noise(frames, 2.0, args.seed, step, 0), split)
+            params, _ = model(inputs, split)
             loss = torch.mean((render_torch(params, args.size, args.size, args.size, args.size) - frames) ** 2)
             optimizer.zero_grad()
             loss.backward()

@@ -80,12 +80,17 @@ def add_commands(subparsers) -> None:
     p.add_argument("--threads", type=options.positive_int, default=None, help="torch CPU threads")
     p.add_argument("--loader-threads", type=options.positive_int, default=1,
                    help="threads drawing the next batches (1 on a 2-core machine; ~8 on a GPU machine)")
+    p.add_argument("--profile", type=options.positive_int, default=None, metavar="STEPS",
+                   help="profile this many steps (after one warm-up step) and write OUT/profile.txt: the ops "
+                        "and the phases (data, forward, backward, optimizer, raster plan) by their own time")
     p.set_defaults(func=_train_command)
 
     p = subparsers.add_parser("export", help="training checkpoint (either design) -> weights (safetensors + JSON "
                                              "card + ONNX)")
     p.add_argument("run", type=options.input_folder, help="run folder holding checkpoint.pt")
-    p.add_argument("--out", default=str(WEIGHTS_DIR), type=options.output_folder)
+    p.add_argument("--out", default=None, type=options.output_folder,
+                   help="folder of the weights (default: RUN/export; the bundled model's is hypergs_blender/weights, "
+                        "named only on purpose)")
     p.add_argument("--name", default=None, type=options.name,
                    help=f"file name (default: {', '.join(f'{v} for the {k} design' for k, v in DEFAULT_NAMES.items())})")
     p.set_defaults(func=_export_command)
@@ -112,6 +117,7 @@ def _train_command(args) -> None:
 
 def _export_command(args) -> None:
     from ..training.export import export_checkpoint
+    args.out = args.out or str(Path(args.run) / "export")
     name, info = export_checkpoint(args.run, args.out, args.name)
     print(f"exported step {info['step']} to {args.out}/{name}.{{safetensors,json,onnx}}")
 

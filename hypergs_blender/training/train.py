@@ -30,6 +30,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
+from torch.profiler import record_function
 
 from ..errors import HyperGSError
 from ..gaussians import lattice_anchors
@@ -58,7 +59,7 @@ PSNR_LOSS_FLOOR = 1e-5
 FLAT_STD = 1 / 255
 FLAT_WINDOW = 9
 # Options of this sitting (the machine, how long), not of the run: a resume never takes them from the checkpoint.
-SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "given", "command"})
+SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "profile", "given", "command"})
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
 FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale")
 
@@ -83,6 +84,25 @@ def rss_mb() -> float:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
     except (OSError, ValueError):
         return 0.0
+
+
+def step_profiler(steps: int, device: torch.device, out: Path):
+    """torch.profiler over `steps` training steps after one warm-up step, started; when they are done it
+    writes out/profile.txt: the ops and the phases (the loop's record_function labels: data, forward,
+    backward, optimizer; the raster's plan) by their own time, the GPU's on a GPU."""
+    from torch.profiler import ProfilerActivity, profile, schedule
+
+    cuda = device.type == "cuda"
+
+    def write(prof):
+        table = prof.key_averages().table(sort_by="self_cuda_time_total" if cuda else "self_cpu_time_total",
+                                          row_limit=40)
+        (out / "profile.txt").write_text(f"{steps} training steps on {device}\n{table}\n")
+
+    profiler = profile(activities=[ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else []),
+                       schedule=schedule(wait=0, warmup=1, active=steps, repeat=1), on_trace_ready=write)
+    profiler.start()
+    return profiler
 
 
 class Prefetcher:
@@ -212,15 +232,17 @@ def lr_groups(model, lr_scale: dict) -> list[dict]:
     return [dict(params=params, lr_scale=scale) for scale, params in groups.items()]
 
 
-def with_noise(frames: torch.Tensor, max_std: float, seed: int, step: int, rank: int) -> torch.Tensor:
-    """The frames plus Gaussian noise of a standard deviation drawn per frame, uniformly in [0, max_std]
-    (in 1/255), quantised to 8 bits like a video frame: what the network sees when it learns that
-    a flat region with a camera's noise in it is still flat. A pure function of (seed, step, rank)."""
+def with_noise(frames: np.ndarray, max_std: float, seed: int, step: int, rank: int) -> np.ndarray:
+    """The frames (float32 numpy, in [0, 1]) plus Gaussian noise of a standard deviation drawn per frame,
+    uniformly in [0, max_std] (in 1/255), quantised to 8 bits like a video frame: what the network sees
+    when it learns that a flat region with a camera's noise in it is still flat. A pure function of
+    (seed, step, rank). Numpy, so that the loader threads make it beside the batch (at batch 64 it took
+    60 ms of a GPU step's main thread)."""
     rng = np.random.default_rng([int(seed), int(step), int(rank), 4099])
     shape = frames.shape
     std = rng.uniform(0, max_std / 255, (shape[0],) + (1,) * (len(shape) - 1)).astype(np.float32)
-    noise = torch.from_numpy(rng.standard_normal(shape, dtype=np.float32) * std).to(frames.device)
-    return (torch.round((frames + noise).clamp(0, 1) * 255) / 255).to(frames.dtype)
+    noisy = frames + rng.standard_normal(shape, dtype=np.float32) * std
+    return (np.round(np.clip(noisy, 0, 1) * 255) / 255).astype(np.float32)
 
 
 def distillation_loss(model, teacher, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -325,8 +347,13 @@ def run(args) -> None:
     sources = data.build_sources(args.data, args.data_root)
     frames_per_clip = 1 if conv else model.cfg.clip_frames
     size = args.size if conv else model.cfg.canvas
-    prefetch = Prefetcher(lambda s: make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size),
-                          args.loader_threads)
+    noise = args.input_noise if teacher is None else 0.0
+
+    def batch(s):  # (clean frames, what the network sees: the frames with noise, or None)
+        frames = make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size)
+        return frames, with_noise(frames, noise, args.seed, s, rank) if noise else None
+
+    prefetch = Prefetcher(batch, args.loader_threads)
     evaluator = Evaluator(model, args.data_root, args.eval_videos) if rank == 0 else None
     log = open(out / "log.jsonl", "a") if rank == 0 else None
     if rank == 0:
@@ -348,26 +375,32 @@ def run(args) -> None:
     bar = tqdm(total=args.steps, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
     started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
     amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
+    profiler = step_profiler(args.profile, device, out) if args.profile and rank == 0 else None
     try:
         while step < args.steps:
-            frames = torch.from_numpy(prefetch.get(step, args.steps)).to(device)
+            with record_function("data"):
+                frames, inputs = (None if a is None else torch.from_numpy(a).to(device)
+                                  for a in prefetch.get(step, args.steps))
             n = gaussians_for_step(args.gaussians, args.seed, step)
             lattice = None if conv else lattice_for_step(n, args.seed, step, rank, frames.shape[0])
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
             for group in optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
-            with amp:
+            with amp, record_function("forward"):
                 if teacher is None:
-                    inputs = with_noise(frames, args.input_noise, args.seed, step, rank) if args.input_noise else None
                     loss, mse, stats = training_loss(train_model, frames, lattice, regularizer, inputs, args.loss,
                                                      args.flat_weight)
                 else:
                     loss, mse, stats = distillation_loss(train_model, teacher, frames)
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            grad_norm = float(torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad],
-                                                             args.clip))
-            optimizer.step()
+            with record_function("backward"):
+                loss.backward()
+            with record_function("optimizer"):
+                grad_norm = float(torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad],
+                                                                 args.clip))
+                optimizer.step()
+            if profiler is not None:
+                profiler.step()
             step += 1
             wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
             if rank == 0:
@@ -394,6 +427,8 @@ def run(args) -> None:
             if args.minutes is not None and time.perf_counter() - run_started > args.minutes * 60:
                 break
     finally:
+        if profiler is not None:
+            profiler.stop()
         prefetch.close()
         if rank == 0:
             save()

@@ -162,7 +162,8 @@ class HYPERGS_OT_export_clip(bpy.types.Operator, ExportHelper):
                ("USDA", ".usda", "USD points with a time sample per frame (text)"),
                ("NPZ", ".npz", "Uncompressed float32 parameters (NumPy)")])
     bits: IntProperty(name="Bits", default=8, min=1, max=16,
-                      description="Bits per value in a .hgs file (more: larger file, smaller error)")
+                      description="Bits per value in a .hgs file (more: larger file, smaller error); the "
+                                  "positions get what the Gaussians' spacing needs")
     link: BoolProperty(name="Link to File", default=False,
                        description="Afterwards read the clip's Gaussians from the exported .hgs file: they leave "
                                    "the .blend (and can no longer be edited there)")

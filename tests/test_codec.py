@@ -177,7 +177,7 @@ def test_hgs_round_trip_within_quantization_error(tmp_path, bits):
     rng = np.random.default_rng(bits)
     video = GaussianVideo(moving_params(rng, 11, 300), 64, 48, 30.0, (2, 1), {"path": "x.mp4", "frames": [1, 2]})
     path = tmp_path / "clip.hgs"
-    size = save_hgs(video, path, bits=bits, group_size=4)
+    size = save_hgs(video, path, bits=(bits,) * 8, group_size=4)
     assert size == path.stat().st_size
     assert list(tmp_path.iterdir()) == [path]  # no temporary file left
     out = load_hgs(path)
@@ -446,7 +446,7 @@ def test_info_command(tmp_path, capsys, monkeypatch):
     save_hgs(video, tmp_path / "c.hgs", bits=6)
     main(["info", str(tmp_path / "c.hgs"), "--verify", "--json"])
     info = json.loads(capsys.readouterr().out)
-    assert info["num_frames"] == 5 and info["num_gaussians"] == 30 and info["bits"] == [8, 8] + [6] * 6  # means: io/codec.clip_bits
+    assert info["num_frames"] == 5 and info["num_gaussians"] == 30 and info["bits"] == [10, 10] + [6] * 6  # means: 1/100 of the 6.3-px spacing (clip_bits)
     assert info["verified"] is True
     main(["info", str(tmp_path / "c.hgs")])
     assert "30 per frame" in capsys.readouterr().out
@@ -491,3 +491,21 @@ def test_means_keep_a_quarter_pixel_on_any_canvas(tmp_path):
     back = load_hgs(tmp_path / "c.hgs").params
     error_px = np.abs(back[..., :2] - params[..., :2]) * np.array([640, 360])
     assert error_px.max() <= MEAN_STEP_PX / 2 + 1e-3
+
+
+def test_means_keep_a_hundredth_of_the_spacing_of_a_fine_clip(tmp_path):
+    """A clip of 4-px cells (14,400 Gaussians on 480 x 480) gets steps of at most 1/100 cell (14 bits):
+    quarter-pixel steps cost 4.3 dB there against the float clip (the codec's comment)."""
+    from hypergs_blender.io.codec import MEAN_STEP_CELL, clip_bits
+    from hypergs_blender.io.hgs import load_hgs, save_hgs
+    assert clip_bits(8, 480, 480, 14400)[:2] == (14, 14) and clip_bits(8, 480, 480)[:2] == (12, 12)
+    assert clip_bits(8, 256, 256, 1024)[:2] == (12, 12) and clip_bits(8, 256, 256, 4)[:2] == (11, 11)  # 1/4 px
+    rng = np.random.default_rng(4)
+    n = 14400
+    params = np.concatenate([rng.uniform(-1, 1, (2, n, 2)), rng.uniform(1, 3, (2, n, 2)),
+                             rng.uniform(0, np.pi, (2, n, 1)), rng.uniform(0, 1, (2, n, 3))], -1).astype(np.float32)
+    save_hgs(GaussianVideo(params, 480, 480, 24.0), tmp_path / "fine.hgs", bits=8)
+    back = load_hgs(tmp_path / "fine.hgs")
+    assert back.params.shape == params.shape
+    error_px = np.abs(back.params[..., :2] - params[..., :2]) * 240
+    assert error_px.max() <= MEAN_STEP_CELL * 4 / 2 + 1e-3

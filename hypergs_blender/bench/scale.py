@@ -18,7 +18,6 @@ from ..encode import EncodePlan, EncodeSettings, encode_frames, encode_video, fr
 from ..evaluate import warm_up
 from ..errors import HyperGSError
 from ..io.clips import save_clip
-from ..io.codec import Quantizer
 from ..io.frames import iter_frames, probe
 from ..io.hgs import HgsReader, HgsWriter
 from ..network import resolve_encoder
@@ -128,8 +127,8 @@ def stream_encode(path, out_path, encoder, gaussians: int | None = None, cell: f
     plan = EncodePlan(path, encoder, EncodeSettings(gaussians, cell, refine), size)
     w, h = plan.width, plan.height
     held, seconds = [], {"decode_encode": 0.0, "write": 0.0}
-    with HgsWriter(out_path, w, h, plan.layout.count, Quantizer.default(w, h, bits), plan.fps, plan.grid,
-                   {"path": str(path)}) as writer:
+    with HgsWriter(out_path, w, h, plan.layout.count, None, plan.fps, plan.grid, {"path": str(path)},
+                   bits=bits) as writer:  # the default quantizer, as `hypergs encode` streams
         started = time.perf_counter()
         for frames, params in plan.chunks(chunk_frames=chunk_frames):
             seconds["decode_encode"] += time.perf_counter() - started

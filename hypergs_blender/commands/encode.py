@@ -23,7 +23,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--stop", type=options.frame_count, default=None)
     p.add_argument("--bits", type=int, default=8, choices=[4, 6, 8], help="quantization bits (.hgs)")
     p.add_argument("--position-bits", type=int, default=None, choices=range(4, 17), metavar="{4..16}",
-                   help="bits of the means (.hgs; default: steps of at most 1/4 canvas pixel, io/codec.clip_bits)")
+                   help="bits of the means (.hgs; default: steps of at most 1/4 canvas pixel and 1/100 of the "
+                        "Gaussians' spacing, io/codec.clip_bits)")
     add_encoder_arguments(p)
     p.set_defaults(func=_encode_command)
 
@@ -58,7 +59,7 @@ def _encode_command(args) -> None:
             # file into place when every frame is in, so an interrupted encode leaves no file behind.
             from ..io.codec import Quantizer, clip_bits
             from ..io.hgs import HgsWriter
-            bits = clip_bits(args.bits, plan.width, plan.height)
+            bits = clip_bits(args.bits, plan.width, plan.height, plan.layout.count)
             if args.position_bits:
                 bits = (args.position_bits,) * 2 + bits[2:]
             quantizer = Quantizer.default(plan.width, plan.height, bits)

@@ -113,7 +113,7 @@ def _save_frames(clip: ClipFrames, path: Path, suffix: str, options: dict) -> No
         from .hgs import DEFAULT_GROUP_SIZE, HgsError, HgsWriter
         try:  # a first pass fits the quantizer's ranges to the whole clip, as save_hgs does
             quantizer = options.get("quantizer") or Quantizer.fit(
-                clip.checked_frames(path), clip_bits(options.get("bits", 8), *header[:2]))
+                clip.checked_frames(path), clip_bits(options.get("bits", 8), *header))
         except CodecError as e:
             raise HgsError(str(e)) from e
         writer = HgsWriter(path, *header, quantizer, clip.fps, clip.grid, clip.source,

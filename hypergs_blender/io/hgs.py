@@ -214,7 +214,8 @@ class HgsWriter(StreamingWriter):
         if CODECS[codec] == FLOAT16:  # the header's bits and ranges are unused: valid placeholders
             quantizer = Quantizer(16, (0.0,) * 8, (0.0,) * 4 + (ROTATION_PERIOD,) + (0.0,) * 3)
         quantizer = quantizer or Quantizer.default(canvas_width, canvas_height,
-                                                   clip_bits(bits, canvas_width, canvas_height))
+                                                   clip_bits(bits, canvas_width, canvas_height,
+                                                             num_gaussians))
         self.header = HgsHeader(int(canvas_width), int(canvas_height), float(fps), int(num_gaussians), grid,
                                 quantizer, int(group_size), source=dict(source or {}), codec=CODECS[codec])
         self.mode = mode
@@ -518,7 +519,7 @@ def save_hgs(video: GaussianVideo, path, bits=8, group_size: int = DEFAULT_GROUP
     if codec == "quantized":
         try:
             quantizer = quantizer or Quantizer.fit(video.params, clip_bits(bits, video.canvas_width,
-                                                                           video.canvas_height))
+                                                                           video.canvas_height, video.num_gaussians))
         except CodecError as e:
             raise HgsError(str(e)) from e
     with HgsWriter(path, video.canvas_width, video.canvas_height, video.num_gaussians, quantizer, video.fps,

@@ -359,3 +359,21 @@ def test_profile_writes_the_steps_phases_and_ops(tmp_path, monkeypatch):
     for phase in ("data", "forward", "backward", "optimizer", "ProfilerStep"):
         assert phase in table, phase
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["step"] == 4  # it trained on
+
+
+def test_an_export_records_the_weights_its_run_started_from(tmp_path, monkeypatch):
+    """A warm-started run's card names its --init-from weights with their own card's record, so a bundled
+    model's chain of runs can be read back from its card."""
+    from hypergs_blender.training.export import export_checkpoint
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    train.run(training_args(tmp_path / "first", 2, "conv"))
+    export_checkpoint(tmp_path / "first", tmp_path / "first" / "export")
+    args = training_args(tmp_path / "second", 3, "conv")
+    args.init_from = str(tmp_path / "first" / "export" / "hypergs.safetensors")
+    train.run(args)
+    export_checkpoint(tmp_path / "second", tmp_path / "second" / "export")
+    card = json.loads((tmp_path / "second" / "export" / "hypergs.json").read_text())
+    parent = card["info"]["train_args"]["init_from"]
+    assert parent["path"] == args.init_from and parent["info"]["step"] == 2 and card["info"]["step"] == 3
+    assert "init_from" not in parent["info"]["train_args"]  # the first run started from nothing

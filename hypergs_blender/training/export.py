@@ -107,6 +107,11 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     if model.cfg.arch == "transformer":
         keys = tuple(k for k in keys if k != "size") + ("gaussians",)  # it trains on its canvas, N per step
     train_args = {k: args[k] for k in keys if k in args}
+    for key in ("init_from", "distill"):  # the weights it started from, with their own card's record: the chain
+        if args.get(key):
+            parent = Path(args[key]).with_suffix(".json")
+            info = json.loads(parent.read_text()).get("info") if parent.is_file() else None
+            train_args[key] = {"path": args[key], "info": info}
     if "regularizer" in state:  # the transformer's adaptive thresholds, for the record
         train_args["regularizer"] = {k: round(float(v), 4) for k, v in state["regularizer"].items()}
     info = dict(step=int(state["step"]), cpu_hours=round(float(state["cpu_seconds"]) / 3600, 3),

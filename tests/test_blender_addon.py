@@ -452,7 +452,8 @@ def run_session(zip_path, work, out_path):
         change = np.abs(after - before).max(-1)
         old = ((params[k, 0] + 1) * W / 2, (params[k, 1] + 1) * H / 2)
         new = ((edited[k, 0] + 1) * W / 2, (edited[k, 1] + 1) * H / 2)
-        reach = 3 * max(params[k, 2], params[k, 3]) * W / 432 + 2
+        # the Gaussian's 3-sigma box (raster.box_radii: axis-aligned) reaches 3 hypot(sx, sy) at its corners
+        reach = 3 * np.hypot(params[k, 2], params[k, 3]) * W / 432 + 2
         yy, xx = np.mgrid[0:H, 0:W] + 0.5
         near_old = np.hypot(xx - old[0], yy - old[1]) < 2
         near_new = np.hypot(xx - new[0], yy - new[1]) < 2

@@ -57,14 +57,14 @@ def _encode_command(args) -> None:
         if streamed:
             # Streamed: memory stays bounded by the chunk, and the writer only renames its temporary
             # file into place when every frame is in, so an interrupted encode leaves no file behind.
-            from ..io.codec import Quantizer, clip_bits
+            from ..io.codec import clip_bits
             from ..io.hgs import HgsWriter
             bits = clip_bits(args.bits, plan.width, plan.height, plan.layout.count)
             if args.position_bits:
                 bits = (args.position_bits,) * 2 + bits[2:]
-            quantizer = Quantizer.default(plan.width, plan.height, bits)
-            with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, quantizer, plan.fps,
-                           plan.grid, plan.source) as writer:
+            # the writer's default quantizer (as `bench scale` streams), at these depths
+            with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, None, plan.fps,
+                           plan.grid, plan.source, bits=bits) as writer:
                 for _, params in plan.chunks(progress):
                     writer.write(params)
         else:

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
-from torch.profiler import record_function
+from torch.profiler import ProfilerActivity, profile, record_function, schedule
 
 from ..errors import HyperGSError
 from ..gaussians import lattice_anchors
@@ -90,8 +90,6 @@ def step_profiler(steps: int, device: torch.device, out: Path):
     """torch.profiler over `steps` training steps after one warm-up step, started; when they are done it
     writes out/profile.txt: the ops and the phases (the loop's record_function labels: data, forward,
     backward, optimizer; the raster's plan) by their own time, the GPU's on a GPU."""
-    from torch.profiler import ProfilerActivity, profile, schedule
-
     cuda = device.type == "cuda"
 
     def write(prof):

@@ -157,6 +157,14 @@ def numba_available() -> bool:
     return _NUMBA is not False
 
 
+def set_threads(threads: int) -> None:
+    """The numba kernels' CPU threads in the calling thread (numba's setting is per thread; the kernels
+    run where `rasterize` is called); nothing without numba. torch.set_num_threads does not reach them."""
+    if numba_available():
+        import numba
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def _check_shapes(means, chol, colors):
     if means.shape[-1] != 2 or chol.shape[-1] != 3 or colors.ndim < 2:
         raise ValueError(f"rasterize: expected means [..., N, 2], chol [..., N, 3], colors [..., N, C]; "

@@ -106,6 +106,27 @@ def test_refine_step_sizes_grow_with_the_steps_up_to_a_cap():
     assert refine_steps(100).colour == refine_steps(1000).colour == pytest.approx(REFINE_SCALE_MAX * REFINE_STEPS.colour)
 
 
+def test_refine_ramps_its_step_sizes_up_over_its_warmup(tiny_video):
+    """Adam's first step moves every parameter by about its full step size whatever its gradient: with the
+    ramp, the first step of a refinement moves the means by 1/REFINE_WARMUP of that; then up to the whole."""
+    import torch
+
+    from hypergs_blender.refine import REFINE_STEPS, REFINE_WARMUP, fit
+
+    frames, _, _ = common.load_frames(tiny_video, 2, 32)
+    params = encode_frames(frames, FloorEncoder(), frames_layout(frames, FloorEncoder(), gaussians=16))
+    target, start = torch.from_numpy(frames).float() / 255, torch.from_numpy(params)
+    step = REFINE_STEPS.mean_cells * math.sqrt(32 * 32 / 16) / 16  # pixels -> the canvas' [-1, 1] (32 px wide)
+
+    def largest_move(iters, warmup):
+        moved = fit(target, start, iters, REFINE_STEPS, schedule="constant", warmup=warmup)
+        return float((moved[..., :2] - start[..., :2]).abs().max())
+
+    assert largest_move(1, 0) == pytest.approx(step, rel=0.01)
+    assert largest_move(1, REFINE_WARMUP) == pytest.approx(step / REFINE_WARMUP, rel=0.01)
+    assert largest_move(REFINE_WARMUP + 1, REFINE_WARMUP) > 2 * largest_move(REFINE_WARMUP + 1, REFINE_WARMUP * 4)
+
+
 def test_refine_ladder_matches_refine_params(tiny_video):
     """The bench times every K as its own run; each K must equal refine_params(K)."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)

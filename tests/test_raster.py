@@ -227,6 +227,32 @@ def test_invalid_gaussians_contribute_nothing():
 
 
 @pytest.mark.skipif(not numba_available(), reason="numba is not installed")
+def test_set_threads_caps_the_numba_kernels_in_its_thread():
+    """`hypergs train --threads 1` must leave the other core free: torch's setting does not reach numba.
+    Run in a thread of its own, as numba's setting is per thread (the test's own thread keeps its)."""
+    import threading
+
+    import numba
+
+    from hypergs_blender import raster
+
+    means, chol, colors = random_gaussians(1, 300, 40, 30, seed=3)
+    expected = rasterize(means, chol, colors, 40, 30, backend="numba")
+    seen = {}
+
+    def capped():
+        raster.set_threads(1)
+        seen["threads"] = numba.get_num_threads()
+        seen["image"] = rasterize(means, chol, colors, 40, 30, backend="numba")
+
+    worker = threading.Thread(target=capped)
+    worker.start()
+    worker.join()
+    assert seen["threads"] == 1
+    close(seen["image"], expected, 1e-6, "one numba thread")
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba is not installed")
 def test_numba_survives_extreme_values():
     """Magnitudes from 1e-38 to 1e38 (thin, absurdly sheared, far away), zeros, denormals, inf and NaN:
     the kernels index only inside the image and return finite images and gradients (invalid Gaussians

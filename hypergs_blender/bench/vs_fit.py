@@ -14,7 +14,7 @@ import numpy as np
 
 from ..encode import FloorEncoder, encode_frames, frames_layout
 from ..network import resolve_encoder
-from ..refine import fit, random_init, refine_params
+from ..refine import FIT_WARMUP, fit, random_init, refine_params
 from ..refine import refine_steps as refine_step_sizes
 from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, load_frames, machine_report, parse_frames, psnr_of, render,
                      resolve_device, say, sync)
@@ -41,8 +41,9 @@ def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_S
 
 
 def fit_from(frames: np.ndarray, n: int, iters: int, init: str = "random", device: str = "cpu", seed: int = 0):
-    """Per-frame fitting for `iters` Adam steps (refine.fit's cosine schedule) from random initial values
-    (refine.random_init, N Gaussians) or from the Gaussian grid (the floor, on the layout for N).
+    """Per-frame fitting for `iters` Adam steps (refine.fit's cosine schedule, ramped up by refine.FIT_WARMUP)
+    from random initial values (refine.random_init, N Gaussians) or from the Gaussian grid (the floor, on
+    the layout for N).
     Returns (params numpy, seconds) for all frames at once (they are fitted as one batch); the grid's
     initial values count in its time."""
     import torch
@@ -56,7 +57,7 @@ def fit_from(frames: np.ndarray, n: int, iters: int, init: str = "random", devic
         start = encode_frames(frames, floor, frames_layout(frames, floor, gaussians=n))
     else:
         start = random_init(t, n, w, h, seed)
-    params = fit(target, torch.from_numpy(start).to(device), iters)
+    params = fit(target, torch.from_numpy(start).to(device), iters, warmup=FIT_WARMUP[init])
     sync(device)
     seconds = time.perf_counter() - started
     return params.detach().cpu().numpy(), seconds

@@ -11,7 +11,7 @@ import torch
 from ..encode import FloorEncoder, encode_frames, frames_layout
 from ..io.frames import read_frames
 from ..metrics import psnr
-from ..refine import FIT_STEPS, fit, random_init
+from ..refine import FIT_STEPS, FIT_WARMUP, fit, random_init
 from ..render import render_torch
 from . import options
 
@@ -40,7 +40,8 @@ def run(args) -> None:
     else:
         init = random_init(t, layout.count, w, h)
     started = time.perf_counter()
-    params = fit(target, torch.from_numpy(init), args.iters, replace(FIT_STEPS, mean_cells=args.mean_step))
+    params = fit(target, torch.from_numpy(init), args.iters, replace(FIT_STEPS, mean_cells=args.mean_step),
+                 warmup=FIT_WARMUP[args.init])
     seconds = time.perf_counter() - started
     quality = psnr(render_torch(params, w, h, w, h).numpy(), frames / np.float32(255))
     result = dict(video=args.video, gaussians=layout.count, iters=args.iters, size=args.size, frames=t,

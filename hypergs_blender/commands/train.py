@@ -77,7 +77,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)
-    p.add_argument("--threads", type=options.positive_int, default=None, help="torch CPU threads")
+    p.add_argument("--threads", type=options.positive_int, default=None,
+                   help="CPU threads of torch and of the numba rasterizer")
     p.add_argument("--loader-threads", type=options.positive_int, default=1,
                    help="threads drawing the next batches (1 on a 2-core machine; ~8 on a GPU machine)")
     p.add_argument("--profile", type=options.positive_int, default=None, metavar="STEPS",

@@ -36,6 +36,7 @@ from ..errors import HyperGSError
 from ..gaussians import lattice_anchors
 from ..io.frames import read_frames
 from ..io.images import resize_exact
+from .. import raster
 from ..metrics import psnr, psnr_from_mse
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
@@ -302,6 +303,7 @@ def run(args) -> None:
         torch.cuda.set_device(device)
     if args.threads:
         torch.set_num_threads(args.threads)
+        raster.set_threads(args.threads)
 
     out.mkdir(parents=True, exist_ok=True)
     config = json.loads(resume["config"]) if resume else asdict(PRESETS[args.preset])

@@ -106,6 +106,23 @@ def test_encode_command_writes_a_clip(moving_video, tmp_path, suffix, capsys):
     assert load_clip(tmp_path / "dense.npz").num_gaussians == 16 * 12
 
 
+def test_encode_command_position_bits_set_the_means_depth_only(moving_video, tmp_path):
+    """.hgs means default to clip_bits' depth for the canvas and count; --position-bits replaces it for
+    the means and leaves the other parameters at --bits."""
+    from hypergs_blender.io.codec import clip_bits
+    from hypergs_blender.io.hgs import HgsReader
+
+    def depths(*argv):
+        out = tmp_path / f"clip{len(argv)}.hgs"
+        main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192", *argv])
+        with HgsReader(out) as reader:
+            return tuple(reader.header.quantizer.bits), (reader.header.canvas_width, reader.header.canvas_height)
+
+    default, (width, height) = depths()
+    assert default == clip_bits(8, width, height, 192) and default[0] > 8
+    assert depths("--position-bits", "12", "--bits", "6")[0] == (12, 12) + (6,) * 6
+
+
 def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     bad = tmp_path / "notes.mp4"
     bad.write_text("not a video")

@@ -271,6 +271,31 @@ def test_bench_commands_are_registered(tmp_path, monkeypatch):
     assert args.video is None and args.seconds == 2.0
 
 
+@pytest.mark.skipif((__import__("os").cpu_count() or 1) < 2, reason="one core: every count is 1")
+def test_vs_fit_runs_every_method_on_the_threads_asked(tiny_video, tmp_path):
+    """Fitting is nearly all rasterizer: on its default threads (all cores) it would race a one-thread
+    network. The command gives torch and the numba rasterizer `--threads` (run in a thread of its own, as
+    numba's setting is per thread; torch's is restored after)."""
+    import threading
+
+    import torch
+
+    from hypergs_blender.commands.cli import main
+
+    out, before = tmp_path / "vs_fit.json", torch.get_num_threads()
+    argv = ["bench", "vs-fit", str(tiny_video), "--encoder", "floor", "--sizes", "32", "--frames", "2",
+            "--gaussians", "16", "--refine-steps", "1", "--fit-iters", "2", "--threads", "1", "-o", str(out)]
+    worker = threading.Thread(target=main, args=(argv,))
+    try:
+        worker.start()
+        worker.join()
+    finally:
+        torch.set_num_threads(before)
+    report = json.loads(out.read_text())
+    machine = report["machine"]
+    assert (machine["torch_threads"], machine.get("numba_threads", 1), report["settings"]["threads"]) == (1, 1, 1)
+
+
 def test_make_plots_writes_pngs_and_tables(tiny_video, tmp_path):
     bench = tmp_path / "bench"
     bench.mkdir()

@@ -45,8 +45,18 @@ def timed(fn, repeats: int = 1, warmup: bool = False, sync=None, statistic=stati
     return statistic(times), result
 
 
+def use_threads(threads: int) -> None:
+    """The CPU threads of everything a bench times: torch's ops and the numba rasterizer (fitting and
+    refinement), which torch's setting does not reach; a comparison gives each side the same."""
+    import torch
+
+    from .. import raster
+    torch.set_num_threads(threads)
+    raster.set_threads(threads)
+
+
 def machine_report(device: str = "cpu") -> dict:
-    """CPU, cores, OS, library versions, torch threads, the accelerator, the date and the load."""
+    """CPU, cores, OS, library versions, torch and numba threads, the accelerator, the date and the load."""
     import av
     cpu = platform.processor() or platform.machine()
     try:
@@ -73,6 +83,10 @@ def machine_report(device: str = "cpu") -> dict:
             info["gpu"] = torch.cuda.get_device_name(torch.device(device))
     except ImportError:
         pass
+    from .. import raster
+    if raster.numba_available():
+        import numba
+        info["numba_threads"] = numba.get_num_threads()
     info["device"] = device
     return info
 

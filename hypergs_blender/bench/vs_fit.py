@@ -124,7 +124,7 @@ def timed_encode(frames: np.ndarray, encoder, layout, device: str):
 def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFINE_STEPS, fit_iters=DEFAULT_FIT_ITERS,
                  sizes=DEFAULT_SIZES, frames: int = 4, start: int = 0, encoder="network", backend: str = "auto",
                  weights=None, device: str = "auto", fit_budget: float | None = None, fit_all: bool = False,
-                 fit_inits=FIT_INITS, progress=None) -> dict:
+                 fit_inits=FIT_INITS, threads: int = 1, progress=None) -> dict:
     """Feedforward vs feedforward + refine vs fitting (from random, from the grid), on the same
     consecutive frames.
 
@@ -133,15 +133,18 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
     PSNR and seconds per frame of each method; for fitting, the rungs of `fit_iters` in order, each a
     separate run (cosine schedule over its own length). Rungs stop early (marked skipped) once one
     reaches the best PSNR of ours (every ratio can then be interpolated) unless fit_all, and when the
-    next rung would take fitting past `fit_budget` seconds, predicted from the last rung's time per step."""
+    next rung would take fitting past `fit_budget` seconds, predicted from the last rung's time per step.
+    threads: the CPU threads of an onnxruntime encoder, and the report's; the command gives torch and
+    the rasterizer as many (common.use_threads), so that every method runs on the same."""
     device = resolve_device(device)
     if isinstance(encoder, str):
-        encoder = resolve_encoder(encoder, backend, weights, device)
+        encoder = resolve_encoder(encoder, backend, weights, device, threads=threads)
     refine_steps, fit_iters = sorted(set(refine_steps)), sorted(set(fit_iters))
     report = {"bench": "vs-fit", "machine": machine_report(device),
               "settings": {"gaussians": list(gaussians), "refine_steps": refine_steps, "fit_iters": fit_iters,
                            "fit_inits": list(fit_inits), "sizes": [str(s) for s in sizes], "frames": frames,
-                           "start": start, "encoder": encoder.name, "fit_budget_s": fit_budget, "fit_all": fit_all,
+                           "start": start, "encoder": encoder.name, "threads": threads, "fit_budget_s": fit_budget,
+                           "fit_all": fit_all,
                            "refine_steps_sizes": {k: asdict(refine_step_sizes(k)) for k in refine_steps},
                            "timing": "seconds per frame, wall clock, all frames as one batch"},
               "videos": []}

@@ -118,14 +118,19 @@ def _vs_fit(parser):
                              f"(default {DEFAULT_FIT_BUDGET:g}; 0: no limit)")
     parser.add_argument("--fit-all", action="store_true",
                         help="run every rung (default: stop once fitting reaches ours' best PSNR)")
+    parser.add_argument("--threads", type=options.positive_int, default=1,
+                        help="CPU threads of every method: the network's and the rasterizer's (fitting, refine)")
     _bench_options(parser)
 
     def run(args) -> dict:
+        from ..bench.common import use_threads
         from ..bench.vs_fit import bench_vs_fit
+        use_threads(args.threads)
         return write_report(bench_vs_fit(args.videos, args.gaussians, args.refine_steps, args.fit_iters, args.sizes,
                                    args.frames, args.start, args.encoder, args.backend, options.weights_from_args(args),
                                    args.device,
-                                   args.fit_budget or None, args.fit_all, args.fit_inits, progress=_progress),
+                                   args.fit_budget or None, args.fit_all, args.fit_inits, args.threads,
+                                   progress=_progress),
                             args.output)
     return run
 
@@ -258,19 +263,19 @@ def _designs(parser):
     parser.add_argument("--start", type=options.frame_index, default=0)
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
-    parser.add_argument("--threads", type=options.positive_int, default=1, help="CPU threads of either backend")
+    parser.add_argument("--threads", type=options.positive_int, default=1,
+                        help="CPU threads of either backend and of the rasterizer (refine)")
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
                         help="also write the JSON report here")
     parser.add_argument("--table", default=None, type=options.OutputFile((".md",)),
                         help="also write the Markdown table here (docs/designs.md)")
 
     def run(args) -> dict:
-        from ..bench.common import resolve_device
+        from ..bench.common import resolve_device, use_threads
         from ..bench.designs import bench_designs
         from ..io.files import write_bytes
         from ..network import read_card, resolve_encoder, weights_name
-        import torch
-        torch.set_num_threads(args.threads)
+        use_threads(args.threads)
         device = resolve_device(args.device)
         conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads)
         weights = Path(args.transformer or WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json")

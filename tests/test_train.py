@@ -104,6 +104,73 @@ def test_resume_continues_exactly(tmp_path, monkeypatch, preset):
     assert all(r["rss_mb"] > 0 for r in records if "loss" in r) and cpu == sorted(cpu) and cpu[-1] > 0
 
 
+def test_input_side_is_drawn_per_step_within_the_scales_on_the_networks_multiple():
+    assert train.input_side_for_step(None, 128, 8, 5, 3) == 128  # no --input-scale: the frames' own size
+    assert train.input_side_for_step("2", 128, 8, 5, 3) == 64
+    sides = [train.input_side_for_step("1:2", 128, 8, 5, step) for step in range(400)]
+    assert sides == [train.input_side_for_step("1:2", 128, 8, 5, step) for step in range(400)]  # resume is exact
+    assert all(side % 8 == 0 and 64 <= side <= 128 for side in sides)
+    assert set(sides) == {64, 72, 80, 88, 96, 104, 112, 120, 128}  # 128 / 2 ... 128 / 1, every multiple of 8
+    assert sides != [train.input_side_for_step("1:2", 128, 8, 6, step) for step in range(400)]  # the seed's
+    assert train.input_side_for_step("8", 32, 8, 5, 3) == 8  # never below one multiple
+
+
+def test_working_frames_are_the_runtimes_eight_bit_resize():
+    from hypergs_blender.io.images import resize_exact
+    frames = np.random.default_rng(0).random((2, 1, 32, 32, 3), dtype=np.float32)
+    small = train.working_frames(frames, 20)
+    assert small.shape == (2, 1, 20, 20, 3) and small.dtype == np.float32
+    for i in range(2):
+        codes = (frames[i, 0] * 255 + 0.5).astype(np.uint8)
+        np.testing.assert_array_equal(small[i, 0], resize_exact(codes, 20, 20).astype(np.float32) / 255)
+
+
+def test_a_working_size_input_is_rendered_at_the_frames_size_as_the_runtime_does():
+    """With --input-scale the network sees the frame at a working size and its Gaussians are rendered at
+    the frame's own, compared with it: for the untrained network (the grid floor) the loss is then the
+    runtime's floor encode of the frame at that density, rendered at the frame's size."""
+    from hypergs_blender.encode import FloorEncoder, encode_frames, frames_layout
+    from hypergs_blender.render import render_params
+    rng = np.random.default_rng(1)
+    frames = np.clip(np.cumsum(rng.normal(0, 0.04, (2, 32, 32, 3)), axis=2) + 0.5, 0, 1).astype(np.float32)
+    codes = (frames * 255 + 0.5).astype(np.uint8)
+    clips = torch.from_numpy(codes[:, None].astype(np.float32) / 255)
+    inputs = torch.from_numpy(train.working_frames(clips.numpy(), 16))  # cells of 8 frame pixels
+    model = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,))).eval()
+    with torch.no_grad():
+        _, mse, _ = train.training_loss(model, clips, None, None, inputs)
+    layout = frames_layout(codes, FloorEncoder(), cell=8)
+    floor = render_params(encode_frames(codes, FloorEncoder(), layout), 32, 32, 32, 32)
+    assert float(mse) == pytest.approx(float(np.mean((floor - codes / 255) ** 2)), rel=1e-4)
+    with torch.no_grad():  # and not the working-size render's
+        small = render_torch(model(inputs[:, 0]), 16, 16, 16, 16)
+    assert float(mse) != pytest.approx(float(torch.mean((small - inputs[:, 0]) ** 2)), rel=1e-2)
+
+
+def test_input_scale_trains_records_and_refuses_the_transformer(tmp_path, monkeypatch):
+    from hypergs_blender.training.export import export_checkpoint
+    monkeypatch.setitem(train.PRESETS, "small", TransformerConfig(**TINY))
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    seen = []
+    forward = ConvGS.forward
+    monkeypatch.setattr(ConvGS, "forward", lambda self, frames, scale=None: seen.append(
+        (frames.shape[1], None if scale is None else float(scale))) or forward(self, frames, scale))
+    args = training_args(tmp_path / "run", 6, "conv")
+    args.input_scale, args.input_noise = "1:2", 2.0
+    train.run(args)
+    sides = [train.input_side_for_step("1:2", 32, 4, 0, step) for step in range(6)]
+    assert seen == [(side, pytest.approx(32 / side)) for side in sides] and min(sides) < 32  # each step's side and render scale
+    seen.clear()
+    export_checkpoint(tmp_path / "run", tmp_path / "run" / "export")
+    card = json.loads((tmp_path / "run" / "export" / "hypergs.json").read_text())
+    assert card["info"]["train_args"]["input_scale"] == "1:2"
+    args = training_args(tmp_path / "transformer", 2, "small")
+    args.input_scale = "1:2"
+    with pytest.raises(HyperGSError, match="--input-scale trains the conv network"):
+        train.run(args)
+
+
 def test_evaluator_encodes_as_the_runtime_does(tmp_path):
     """At initialisation the conv network is the grid floor: the trainer's evaluation must then give the
     floor's PSNR through encode.encode_frames (the same resize, layout and rendering)."""

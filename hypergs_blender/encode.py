@@ -17,7 +17,7 @@ benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, t
 
 Encoders: the trained networks through torch or onnxruntime (network.py), and the grid floor that
 every model must beat (`FloorEncoder`). Each has `name`, `tile_borders`, `release` and
-`predict(working frames, cells, scale) -> params` (scale: the source's pixels per working pixel); the conv network and the floor a `stride` and `granule`,
+`predict(working frames, cells) -> params`; the conv network and the floor a `stride` and `granule`,
 the transformer a `canvas` and `clip_frames`.
 """
 from __future__ import annotations
@@ -322,9 +322,9 @@ class FloorEncoder:
     def release(self) -> None:
         """Nothing to give back (the network's encoders free their runtime's memory here)."""
 
-    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None, scale: float = 1.0) -> np.ndarray:
+    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the stride -> params [B, N, 8]
-        (`cells`, the layout's (cols, rows), must be the frame's; scale is not read)."""
+        (`cells`, the layout's (cols, rows), must be the frame's)."""
         b, h, w, _ = frames.shape
         s = self.stride
         rows, cols = h // s, w // s
@@ -347,12 +347,12 @@ def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) 
     clip = getattr(encoder, "clip_frames", 1)
     per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height * clip)) * clip
     params = np.empty((len(frames), layout.count, 8), np.float32)
-    tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     for start in range(0, len(frames), per_pass):
         work = np.stack([resize_exact(f, layout.work_width, layout.work_height)
                          for f in frames[start:start + per_pass]]).astype(np.float32)
         work /= 255
-        params[start:start + len(work)] = encoder.predict(work, (layout.cols, layout.rows), math.sqrt(tx * ty))
+        params[start:start + len(work)] = encoder.predict(work, (layout.cols, layout.rows))
+    tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     if (tx, ty) != (1, 1):
         params = stretch_params(params, tx, ty)
     if refine:

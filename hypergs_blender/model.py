@@ -99,7 +99,6 @@ class ConvConfig:
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
-    render_scale: bool = False  # the network reads the scale its Gaussians are rendered at (forward's `scale`)
 
     def __post_init__(self):
         self.blocks = tuple(int(b) for b in self.blocks)
@@ -346,10 +345,6 @@ class ConvGS(nn.Module):
                                      for w, m, n in zip(widths, mids, cfg.blocks))
         self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
         self.decoder = nn.ModuleList(ResBlock(w, m) for w, m in zip(widths[:-1], mids))
-        if cfg.render_scale:  # log(scale) -> a shift of the cell features; zero: a warm start is its source
-            self.scale_embedding = nn.Linear(1, c)
-            nn.init.zeros_(self.scale_embedding.weight)
-            nn.init.zeros_(self.scale_embedding.bias)
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor
         nn.init.zeros_(self.head.bias)
@@ -358,14 +353,9 @@ class ConvGS(nn.Module):
         """Input [B, 3, H, W] (normalised) -> the stem's features [B, width, H / stride, W / stride]."""
         return self.to_cell(self.stem(x)) + self.cell_pixels(F.pixel_unshuffle(x, self.cfg.stride))
 
-    def features(self, x: torch.Tensor, scale: torch.Tensor | None = None) -> torch.Tensor:
-        """Input [B, 3, H, W] (normalised) -> cell features [B, width, H / stride, W / stride]; scale: see
-        forward (read where cfg.render_scale)."""
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """Input [B, 3, H, W] (normalised) -> cell features [B, width, H / stride, W / stride]."""
         h = self.cell_features(x)
-        if self.cfg.render_scale:
-            scale = torch.ones(1, dtype=x.dtype, device=x.device) if scale is None else scale
-            log_scale = torch.log(scale.to(x.dtype).reshape(-1, 1))  # [1 or B, 1]
-            h = h + self.scale_embedding(log_scale)[:, :, None, None]
         skips = []
         for level, blocks in enumerate(self.encoder):
             if level:
@@ -377,17 +367,13 @@ class ConvGS(nn.Module):
             h = self.decoder[level](skip + F.interpolate(self.up[level](h), scale_factor=2.0, mode="nearest"))
         return h
 
-    def forward(self, frames: torch.Tensor, scale: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
         """frames [B, H, W, 3] in [0, 1], H and W multiples of cfg.multiple -> params [B, N, 8] on the
-        W x H canvas (N = (H / stride) x (W / stride), row-major from the top-left cell). scale [1] or
-        [B]: the resolution the Gaussians will be rendered at, in pixels per input pixel (the source
-        frame's over the working frame's: cells of 8 source pixels give 2; default 1). Only a network
-        with cfg.render_scale reads it: trained with `hypergs train --input-scale`, it renders the
-        detail of a frame larger than its input."""
+        W x H canvas (N = (H / stride) x (W / stride), row-major from the top-left cell)."""
         cfg = self.cfg
         s = cfg.stride
         x = frames.permute(0, 3, 1, 2)
-        h = self.head(self.features((x - 0.5) * 2, scale))  # [B, 8, rows, cols]
+        h = self.head(self.features((x - 0.5) * 2))  # [B, 8, rows, cols]
         height, width = x.shape[-2:]
         rows, cols = h.shape[-2:]
         ys = (torch.arange(rows, dtype=h.dtype, device=h.device) + 0.5) * s

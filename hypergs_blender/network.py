@@ -73,9 +73,9 @@ def release_arena(session, tiny_inputs: dict) -> None:
 
 
 class NetworkEncoder:
-    """Runs `forward(frames float32 [B, h, w, 3], scale) -> params [B, (h/stride)(w/stride), 8]` (a network
-    on any backend; scale: see model.ConvGS.forward) over working frames of any size, tiled (see the
-    module doc). stride, multiple and reach are the network's (model.ConvConfig)."""
+    """Runs `forward(frames float32 [B, h, w, 3]) -> params [B, (h/stride)(w/stride), 8]` (a network on
+    any backend) over working frames of any size, tiled (see the module doc). stride, multiple and
+    reach are the network's (model.ConvConfig)."""
 
     def __init__(self, forward, stride: int, multiple: int, reach: int, name: str, tile: int = TILE,
                  session=None):
@@ -89,19 +89,17 @@ class NetworkEncoder:
         """Give back the memory the runtime kept from the passes so far (onnxruntime's arena; torch's
         CPU allocator keeps none): call it after a conversion. The encoder stays usable."""
         if self.session is not None:
-            tiny = {"frames": np.zeros((1, self.multiple, self.multiple, 3), np.float32), "scale": np.ones(1, np.float32)}
-            release_arena(self.session, {i.name: tiny[i.name] for i in self.session.get_inputs()})
+            release_arena(self.session, {"frames": np.zeros((1, self.multiple, self.multiple, 3), np.float32)})
 
     def tile_borders(self, width: int, height: int) -> tuple[list[int], list[int]]:
         """Where the tiles' cores meet on a working frame of width x height: (columns, rows)."""
         return tuple([c0 for _, _, c0, _ in tiles(size, self.reach, self.multiple, self.tile)][1:]
                      for size in (width, height))
 
-    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None, scale: float = 1.0) -> np.ndarray:
+    def predict(self, frames: np.ndarray, cells: tuple[int, int] | None = None) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1] (H, W multiples of the network's `multiple`) -> params
         [B, N, 8] on the W x H canvas, row-major over the (H / stride) x (W / stride) cells (`cells`,
-        the layout's (cols, rows), must be those). scale: the source frame's pixels per working pixel,
-        the resolution the Gaussians are meant for (a network trained with --input-scale reads it)."""
+        the layout's (cols, rows), must be those)."""
         b, h, w, _ = frames.shape
         s = self.stride
         check_cells(cells, w // s, h // s)
@@ -114,7 +112,7 @@ class NetworkEncoder:
         for k in range(0, len(jobs), per_call):
             batch = jobs[k:k + per_call]
             crops = np.stack([frames[i, ya:yb, xa:xb] for i, ((ya, yb, _, _), (xa, xb, _, _)) in batch])
-            params = np.asarray(self.forward(np.ascontiguousarray(crops, np.float32), scale))
+            params = np.asarray(self.forward(np.ascontiguousarray(crops, np.float32)))
             wh, ww = crops.shape[1:3]
             params = params.reshape(len(batch), wh // s, ww // s, 8)
             for p, (i, ((ya, yb, ca, cb), (xa, xb, da, db))) in zip(params, batch):
@@ -177,10 +175,10 @@ class TransformerEncoder:
                         first_at_or_after(c1) - first))
         return out
 
-    def predict(self, frames: np.ndarray, cells: tuple[int, int], scale: float = 1.0) -> np.ndarray:
+    def predict(self, frames: np.ndarray, cells: tuple[int, int]) -> np.ndarray:
         """frames float32 [B, H, W, 3] in [0, 1], H and W multiples of the canvas; cells: the Gaussian
         lattice (cols, rows), k per tile along each axis -> params [B, rows * cols, 8] on the W x H
-        canvas, row-major over the lattice. scale: as NetworkEncoder.predict's (not read)."""
+        canvas, row-major over the lattice."""
         b, h, w, _ = frames.shape
         c, t = self.canvas, self.clip_frames
         cols, rows = cells
@@ -277,9 +275,9 @@ def torch_encoder(model, device="cpu", card: dict | None = None):
 
         return _transformer_encoder(forward, card or dict(geometry=transformer_geometry(cfg)), "transformer-torch")
 
-    def forward(frames: np.ndarray, scale: float) -> np.ndarray:
+    def forward(frames: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            return model(torch.from_numpy(frames).to(device), torch.tensor([scale], device=device)).float().cpu().numpy()
+            return model(torch.from_numpy(frames).to(device)).float().cpu().numpy()
 
     return NetworkEncoder(forward, cfg.stride, cfg.multiple, cfg.reach, "network-torch")
 
@@ -299,11 +297,8 @@ def onnx_encoder(onnx_path, card: dict, providers: list[str] | None = None, thre
 
         return _transformer_encoder(forward, card, "transformer-onnx", session)
 
-    reads_scale = "scale" in {i.name for i in session.get_inputs()}  # a network trained with --input-scale
-
-    def forward(frames: np.ndarray, scale: float) -> np.ndarray:
-        feeds = {"frames": frames, **({"scale": np.array([scale], np.float32)} if reads_scale else {})}
-        return session.run(["params"], feeds)[0]
+    def forward(frames: np.ndarray) -> np.ndarray:
+        return session.run(["params"], {"frames": frames})[0]
 
     geometry = card["geometry"]  # written by training.export from the model's config
     return NetworkEncoder(forward, geometry["stride"], geometry["multiple"], geometry["reach"], "network-onnx",

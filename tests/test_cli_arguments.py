@@ -56,7 +56,7 @@ def good_value(action, tmp_path) -> str:
         return str(max(kind.low, 1))
     if isinstance(kind, options.Real):
         return str(min(kind.high, 1.0) / 2 if kind.high < float("inf") else 1.0)
-    return {options.Resolution: "64x48", options.FrameSize: "crop64", options.GaussianRange: "16:64", options.ScaleRange: "1:2",
+    return {options.Resolution: "64x48", options.FrameSize: "crop64", options.GaussianRange: "16:64",
             options.PatchGrid: "2"}.get(
         type(kind), "x")
 

@@ -127,14 +127,11 @@ def test_lamb_step_matches_hand_computation():
 
 
 def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
-    """A conv network with every block, the head and the render scale's map away from their zero
-    initialisation."""
+    """A conv network with every block and the head away from their zero initialisation."""
     torch.manual_seed(seed)
     model = ConvGS(cfg)
     with torch.no_grad():
         model.head.weight.normal_(0, 0.05)
-        if cfg.render_scale:
-            model.scale_embedding.weight.normal_()
         for block in [b for level in model.encoder for b in level] + list(model.decoder):
             block.b.weight.normal_(0, 0.05)
     return model.eval()
@@ -146,40 +143,6 @@ def test_conv_model_starts_at_the_grid_floor(preset):
     with torch.no_grad():
         out = ConvGS(PRESETS[preset]).eval()(torch.from_numpy(frames)).numpy()
     np.testing.assert_allclose(out, FloorEncoder().predict(frames), atol=1e-5)
-
-
-def test_a_render_scale_network_starts_as_its_warm_start_and_reads_the_scale():
-    """render_scale adds a zero-initialised map of log(scale) to the cell features: the network with the
-    weights of one without it is that network at every scale (a warm start loses nothing); trained, the
-    scale changes the Gaussians, and scale 1 is the default."""
-    plain = random_conv(ConvConfig(width=8, stem=4, stem_level="cell"))
-    scaled = ConvGS(ConvConfig(width=8, stem=4, stem_level="cell", render_scale=True)).eval()
-    missing, unexpected = scaled.load_state_dict(plain.state_dict(), strict=False)
-    assert sorted(missing) == ["scale_embedding.bias", "scale_embedding.weight"] and not unexpected
-    frames = torch.rand(2, 16, 24, 3)
-    with torch.no_grad():
-        base = plain(frames)
-        for scale in (1.0, 1.5, 2.0):
-            torch.testing.assert_close(scaled(frames, torch.tensor([scale])), base, rtol=0, atol=0)
-        scaled.scale_embedding.weight.normal_()
-        torch.testing.assert_close(scaled(frames), scaled(frames, torch.tensor([1.0])), rtol=0, atol=0)
-        assert (scaled(frames, torch.tensor([2.0])) - base).abs().max() > 1e-3
-        torch.testing.assert_close(plain(frames, torch.tensor([2.0])), base, rtol=0, atol=0)  # read only if configured
-
-
-def test_encode_frames_tells_the_encoder_the_source_pixels_per_working_pixel():
-    from hypergs_blender.encode import encode_frames, plan_layout
-    seen = []
-
-    class Recording(FloorEncoder):
-        def predict(self, frames, cells=None, scale=1.0):
-            seen.append(scale)
-            return super().predict(frames, cells, scale)
-
-    frames = np.zeros((1, 64, 96, 3), np.uint8)
-    for cell, scale in ((8, 2.0), (6, 1.5), (4, 1.0)):
-        encode_frames(frames, Recording(), plan_layout(96, 64, 4, cell=cell))
-        assert seen.pop() == pytest.approx(scale, rel=0.03)  # cells are whole working pixels: about cell / 4
 
 
 def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
@@ -237,24 +200,22 @@ def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
     np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
 
 
-@pytest.mark.parametrize("stem_level,render_scale", [("pixel", False), ("cell", False), ("cell", True)])
-def test_onnx_matches_torch(tmp_path, stem_level, render_scale):
+@pytest.mark.parametrize("stem_level", ["pixel", "cell"])
+def test_onnx_matches_torch(tmp_path, stem_level):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level, render_scale=render_scale))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)
     for shape in ((3, 32, 32, 3), (1, 48, 96, 3)):  # one exported graph serves any size, hence any count
         frames = rng.random(shape, dtype=np.float32)
-        for scale in (1.0, 2.0):  # a network that reads its render scale gets it on both backends
-            a, b = onnx.predict(frames, scale=scale), torch_.predict(frames, scale=scale)
-            assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
-            np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)
-        assert (np.abs(onnx.predict(frames, scale=1.0) - a).max() > 1e-3) == render_scale
+        a, b = onnx.predict(frames), torch_.predict(frames)
+        assert a.shape == (shape[0], shape[1] // 4 * shape[2] // 4, 8)
+        np.testing.assert_allclose(a, b, atol=1e-4, rtol=1e-4)
     onnx.release()  # gives the arena back; the encoder stays usable and gives the same numbers
     torch_.release()
-    np.testing.assert_array_equal(onnx.predict(frames, scale=2.0), a)
+    np.testing.assert_array_equal(onnx.predict(frames), a)
     assert not onnx.session.get_session_options().enable_mem_pattern
 
 

@@ -278,24 +278,6 @@ class GaussianRange(ArgType):
         return text
 
 
-class ScaleRange(ArgType):
-    """'F' or 'LO:HI' downscale factors, 1 <= LO <= HI <= high; returned as text."""
-
-    def __init__(self, high: float):
-        self.high = high
-        self.refused = ("abc", "", "0.5", "2:1", f"1:{high * 2:g}", "1:", "1:2:3", "nan")
-
-    def __call__(self, text: str) -> str:
-        parts = text.split(":")
-        if len(parts) > 2:
-            raise argparse.ArgumentTypeError(f"{text!r} is not F or LO:HI")
-        factor = Real(1.0, inclusive=True, high=self.high)
-        low, high = factor(parts[0]), factor(parts[-1])
-        if low > high:
-            raise argparse.ArgumentTypeError(f"{text!r}: LO is above HI")
-        return text
-
-
 class PatchGrid(ArgType):
     """The transformer's patch grid: 'G' (G x G tiles) or 'COLSxROWS' -> (columns, rows)."""
 
@@ -338,7 +320,6 @@ run_folder = OutputFolder(parents=True)
 resolution = Resolution()
 frame_size = FrameSize()
 gaussian_range = GaussianRange()
-scale_range = ScaleRange(high=8.0)  # cells of 4 to 32 source pixels (encode.py's densities)
 patch_grid = PatchGrid()
 
 

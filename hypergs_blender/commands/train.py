@@ -70,10 +70,6 @@ def add_commands(subparsers) -> None:
     p.add_argument("--input-noise", type=options.non_negative_float, default=0.0,
                    help="conv: the network sees each frame with Gaussian noise of a std up to this (1/255), "
                         "quantised to 8 bits; the render is compared with the clean frame")
-    p.add_argument("--input-scale", default=None, type=options.scale_range, metavar="LO:HI",
-                   help="conv: the network sees each step's frames downscaled by a factor drawn in LO:HI (8-bit, "
-                        "the runtime's resize) and its Gaussians are rendered at the frames' size: trained for "
-                        "the densities whose cells are more than 4 source pixels (Standard 6, Draft 8)")
     p.add_argument("--flat-weight", type=options.non_negative_float, default=0.0,
                    help="the squared error of a flat pixel (the clean frame's std under 1/255 around it, "
                         "eval's flat-ripple criterion) counts 1 + this times a detailed one's: flat regions "

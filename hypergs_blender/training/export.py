@@ -47,7 +47,7 @@ def save_weights(model, directory, name: str, info: dict | None = None) -> None:
 
 def export_onnx(model, path) -> None:
     """Either design, with a dynamic batch: the conv network with dynamic height and width (multiples
-    of its `multiple`) and, where it reads one, its render scale; the transformer with a dynamic Gaussian count (anchors [batch, N, 2])."""
+    of its `multiple`), the transformer with a dynamic Gaussian count (anchors [batch, N, 2])."""
     import torch
 
     batch = torch.export.Dim("batch", max=4096)
@@ -66,8 +66,6 @@ def export_onnx(model, path) -> None:
         rows, cols = torch.export.Dim("rows", max=8192 // m), torch.export.Dim("cols", max=8192 // m)
         inputs, names = (torch.rand(2, 4 * m, 6 * m, 3),), ["frames"]
         dynamic = {"frames": {0: batch, 1: m * rows, 2: m * cols}}
-        if cfg.render_scale:  # the scale its Gaussians are rendered at (model.ConvGS.forward), one per call
-            inputs, names, dynamic = inputs + (torch.tensor([1.5]),), names + ["scale"], {**dynamic, "scale": None}
     program = torch.onnx.export(model.eval(), inputs, input_names=names, output_names=["params"],
                                 opset_version=ONNX_OPSET, dynamo=True, external_data=False, dynamic_shapes=dynamic)
     with AtomicOutput(path) as temp:
@@ -105,7 +103,7 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     model.load_state_dict(state["model"])
     args = json.loads(state["args"])
     keys = ("data", "batch", "size", "lr", "min_lr_ratio", "warmup", "clip", "steps", "seed", "preset", "config", "loss",
-            "input_noise", "input_scale", "flat_weight")
+            "input_noise", "flat_weight")
     if model.cfg.arch == "transformer":
         keys = tuple(k for k in keys if k != "size") + ("gaussians",)  # it trains on its canvas, N per step
     train_args = {k: args[k] for k in keys if k in args}

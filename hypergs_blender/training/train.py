@@ -78,29 +78,6 @@ def gaussians_for_step(spec: str, seed: int, step: int) -> int:
     return int(round(math.exp(rng.uniform(math.log(lo), math.log(hi)))))
 
 
-def input_side_for_step(scales: str | None, size: int, multiple: int, seed: int, step: int) -> int:
-    """The side of the conv network's input at a step: `size`, the frames' own, or under --input-scale
-    LO:HI the frames downscaled by a factor drawn log-uniformly in [LO, HI] (a pure function of (seed,
-    step)), rounded to a multiple of the network's `multiple`. The encoder sees a frame at its working
-    size (a cell of 4 working pixels) and the user renders its Gaussians at the frame's own: a Standard
-    cell is 6 source pixels, Draft's and N = 1000 on 256^2 8. Trained at one scale only, the network never
-    sees the detail it is judged on there."""
-    if not scales:
-        return size
-    low, high = (float(v) for v in scales.split(":")) if ":" in scales else (float(scales),) * 2
-    factor = math.exp(np.random.default_rng([seed, step, 6007]).uniform(math.log(low), math.log(high)))
-    return max(multiple, int(round(size / factor / multiple)) * multiple)
-
-
-def working_frames(frames: np.ndarray, side: int) -> np.ndarray:
-    """[..., S, S, 3] float32 frames in [0, 1] -> [..., side, side, 3] as the encoder sees them at its
-    working size: 8-bit and area-resized by the runtime's own resize (io.images.resize_exact)."""
-    shape = frames.shape
-    flat = (np.clip(frames, 0, 1) * 255 + 0.5).astype(np.uint8).reshape(-1, *shape[-3:])
-    small = np.stack([resize_exact(frame, side, side) for frame in flat])
-    return (small.astype(np.float32) / 255).reshape(*shape[:-3], side, side, 3)
-
-
 def rss_mb() -> float:
     """Resident memory of this process (MiB), 0 where /proc is missing."""
     try:
@@ -187,23 +164,18 @@ def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] |
                   flat_weight: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """(loss, mse, regularizer stats) of one batch of clips [B, T, S, S, 3]; lattice: the transformer's
     (k, phase per clip), see lattice_for_step (the conv network's Gaussians are its cells). inputs: what
-    the (conv) network sees instead of the frames, e.g. the frames with noise or at a working size of
-    their own ([B, T, s, s, 3]: its Gaussians are rendered at S, compared with the frames). loss: the data term, one of LOSSES (frame_loss), of the frames' MSEs weighted per pixel
+    the (conv) network sees instead of the frames, e.g. the frames with noise (the render is compared
+    with the frames). loss: the data term, one of LOSSES (frame_loss), of the frames' MSEs weighted per pixel
     by flat_pixel_weights when flat_weight > 0 (the returned mse stays the plain one, for the log)."""
     b, t, size = frames.shape[:3]
-    canvas = size
     if isinstance(getattr(model, "module", model), ConvGS):
         frames = frames.reshape(b * t, size, size, 3)
-        if inputs is not None:
-            canvas = inputs.shape[2]
-            inputs = inputs.reshape(b * t, canvas, canvas, 3)
-        scale = torch.tensor([size / canvas], device=frames.device)  # the render's pixels per input pixel
-        params = model(frames if inputs is None else inputs, scale).float()
+        params = model(frames if inputs is None else inputs.reshape(b * t, size, size, 3)).float()
     else:
         k, phase = lattice
         anchors = torch.from_numpy(lattice_anchors(k, phase)).to(frames.device)
         params = model(frames, anchors, torch.tensor([2.0 / k], device=frames.device)).float()
-    error = (render_torch(params, canvas, canvas, size, size) - frames) ** 2
+    error = (render_torch(params, size, size, size, size) - frames) ** 2
     per_frame_mse = torch.mean(error, dim=(-3, -2, -1))
     if flat_weight > 0:
         weights = flat_pixel_weights(frames, flat_weight)
@@ -376,17 +348,10 @@ def run(args) -> None:
     frames_per_clip = 1 if conv else model.cfg.clip_frames
     size = args.size if conv else model.cfg.canvas
     noise = args.input_noise if teacher is None else 0.0
-    if args.input_scale and (not conv or teacher is not None):
-        raise HyperGSError("--input-scale trains the conv network's render loss (a transformer sees its canvas; "
-                           "--distill compares features at one size)")
 
-    def batch(s):  # (clean frames, what the network sees: at its working size, with noise; or None)
+    def batch(s):  # (clean frames, what the network sees: the frames with noise, or None)
         frames = make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size)
-        side = input_side_for_step(args.input_scale, size, model.cfg.multiple, args.seed, s) if conv else size
-        inputs = working_frames(frames, side) if side != size else None
-        if noise:
-            inputs = with_noise(frames if inputs is None else inputs, noise, args.seed, s, rank)
-        return frames, inputs
+        return frames, with_noise(frames, noise, args.seed, s, rank) if noise else None
 
     prefetch = Prefetcher(batch, args.loader_threads)
     evaluator = Evaluator(model, args.data_root, args.eval_videos) if rank == 0 else None
@@ -519,9 +484,8 @@ class Evaluator:
     def _encode(model, inputs: np.ndarray, cell: int, device) -> torch.Tensor:
         n = (EVAL_SIZE // cell) ** 2
         if isinstance(model, ConvGS):
-            scale = cell / model.cfg.stride  # working pixels -> 256 x 256 pixels
-            params = model(torch.from_numpy(inputs).to(device), torch.tensor([float(scale)], device=device)).float()
-            params[..., 2:4] *= scale
+            params = model(torch.from_numpy(inputs).to(device)).float()
+            params[..., 2:4] *= cell / model.cfg.stride  # working pixels -> 256 x 256 pixels
             return params
         anchors, spacing = anchor_inputs(n, device)
         params = model(torch.from_numpy(inputs).to(device), anchors, spacing).float().reshape(-1, n, 8)

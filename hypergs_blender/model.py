@@ -344,6 +344,9 @@ class ConvGS(nn.Module):
         self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w, m) for _ in range(n)))
                                      for w, m, n in zip(widths, mids, cfg.blocks))
         self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
+        for up in self.up:  # coarser levels start switched off: a warm start from fewer levels is that network
+            nn.init.zeros_(up.weight)
+            nn.init.zeros_(up.bias)
         self.decoder = nn.ModuleList(ResBlock(w, m) for w, m in zip(widths[:-1], mids))
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor

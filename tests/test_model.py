@@ -127,11 +127,14 @@ def test_lamb_step_matches_hand_computation():
 
 
 def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
-    """A conv network with every block and the head away from their zero initialisation."""
+    """A conv network with every block, every way back up from a coarser level and the head away from
+    their zero initialisation."""
     torch.manual_seed(seed)
     model = ConvGS(cfg)
     with torch.no_grad():
         model.head.weight.normal_(0, 0.05)
+        for up in model.up:
+            up.weight.normal_(0, 0.2)
         for block in [b for level in model.encoder for b in level] + list(model.decoder):
             block.b.weight.normal_(0, 0.05)
     return model.eval()
@@ -143,6 +146,21 @@ def test_conv_model_starts_at_the_grid_floor(preset):
     with torch.no_grad():
         out = ConvGS(PRESETS[preset]).eval()(torch.from_numpy(frames)).numpy()
     np.testing.assert_allclose(out, FloorEncoder().predict(frames), atol=1e-5)
+
+
+def test_coarser_levels_start_switched_off():
+    """A network with a coarser level (blocks (2, 1)) holding the weights of one without it is that
+    network: `hypergs train --init-from` adds context to a trained network without losing what it learned."""
+    plain = random_conv(ConvConfig(width=8, stem=4, stem_level="cell", blocks=(2,)))
+    deeper = ConvGS(ConvConfig(width=8, stem=4, stem_level="cell", blocks=(2, 1))).eval()
+    missing, unexpected = deeper.load_state_dict(plain.state_dict(), strict=False)
+    assert {name.split(".")[0] for name in missing} == {"down", "encoder", "up", "decoder"} and not unexpected
+    frames = torch.rand(2, 16, 24, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(deeper(frames), plain(frames), rtol=0, atol=0)
+        deeper.up[0].weight.normal_()
+        deeper.encoder[1][0].b.weight.normal_()
+        assert (deeper(frames) - plain(frames)).abs().max() > 1e-3
 
 
 def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():

@@ -4,6 +4,8 @@
     .venv/bin/python tools/plot_training.py runs/conv [runs/other ...] [--out docs/training_curve.png]
     .venv/bin/python tools/plot_training.py runs/conv runs/conv2 --chain   # conv2 started from conv's
                                                                            # weights at its last evaluation
+    .venv/bin/python tools/plot_training.py runs/conv3 --chain --earlier docs/training_curve.csv
+                                           # conv3 continues the chain that CSV holds (those logs may be gone)
 """
 from __future__ import annotations
 
@@ -23,29 +25,46 @@ def read_log(run: Path) -> tuple[list[dict], list[dict]]:
     return [r for r in records if "eval" in r], [r for r in records if "loss" in r]
 
 
+def read_csv(path: Path) -> list[tuple[str, list[dict]]]:
+    """(run name, evaluation records) of each run in a CSV this tool wrote, in its order; CPU time as written
+    (a chain's offsets included)."""
+    runs: dict[str, dict[int, dict]] = {}  # run -> step -> its record (the CSV has a row per metric)
+    for line in path.read_text().splitlines()[1:]:
+        name, step, cpu_hours, wall_hours, metric, value = line.split(",")
+        record = runs.setdefault(name, {}).setdefault(
+            int(step), dict(step=int(step), cpu=float(cpu_hours) * 3600, wall=float(wall_hours) * 3600, eval={}))
+        record["eval"][metric] = float(value)
+    return [(name, sorted(records.values(), key=lambda r: r["step"])) for name, records in runs.items()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("runs", nargs="*", type=Path)
     parser.add_argument("--out", type=Path, default=Path("docs/training_curve.png"))
     parser.add_argument("--chain", action="store_true",
                         help="each run continues the previous one from its last evaluation: its hours start there")
+    parser.add_argument("--earlier", type=Path,
+                        help="a CSV this tool wrote: its runs come first, as it holds them (their logs need not be "
+                             "here; no memory curve), e.g. the chain a new run continues")
     args = parser.parse_args()
     fig, (ax, mem) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
     rows = ["run,step,cpu_hours,wall_hours,metric,psnr"]
-    offset = 0.0  # CPU seconds before this run (--chain)
+    earlier = read_csv(args.earlier) if args.earlier else []
+    offset = earlier[-1][1][-1]["cpu"] if args.chain and earlier else 0.0  # CPU seconds before this run (--chain)
     colours: dict[str, str] = {}  # one colour per metric across runs
-    for run in args.runs:
-        evals, steps = read_log(run)
-        evals = [dict(r, cpu=r["cpu"] + offset) for r in evals]
-        steps = [dict(r, cpu=r["cpu"] + offset) for r in steps]
+    runs = [(name, evals, None) for name, evals in earlier] + [(run.name, *read_log(run)) for run in args.runs]
+    for index, (name, evals, steps) in enumerate(runs):
+        if steps is not None:  # a log: its times from the chain's offset
+            evals = [dict(r, cpu=r["cpu"] + offset) for r in evals]
+            steps = [dict(r, cpu=r["cpu"] + offset) for r in steps]
+            mem.plot([r["cpu"] / 3600 for r in steps], [r["rss_mb"] for r in steps], lw=1, label=name)
         for metric in sorted(evals[0]["eval"]) if evals else []:
-            hours = [r["cpu"] / 3600 for r in evals]
+            hours = [r["cpu"] / 3600 for r in evals if metric in r["eval"]]
             colour = colours.setdefault(metric, f"C{len(colours)}")
-            ax.plot(hours, [r["eval"][metric] for r in evals], marker="o", ms=3, color=colour,
-                    label=(metric if run == args.runs[0] else "_nolegend_") if args.chain else f"{run.name}: {metric}")
-            rows += [f"{run.name},{r['step']},{r['cpu'] / 3600:.3f},{r['wall'] / 3600:.3f},{metric},{r['eval'][metric]}"
-                     for r in evals]
-        mem.plot([r["cpu"] / 3600 for r in steps], [r["rss_mb"] for r in steps], lw=1, label=run.name)
+            ax.plot(hours, [r["eval"][metric] for r in evals if metric in r["eval"]], marker="o", ms=3, color=colour,
+                    label=(metric if index == 0 else "_nolegend_") if args.chain else f"{name}: {metric}")
+            rows += [f"{name},{r['step']},{r['cpu'] / 3600:.3f},{r['wall'] / 3600:.3f},{metric},{r['eval'][metric]}"
+                     for r in evals if metric in r["eval"]]
         if args.chain and evals:
             offset = evals[-1]["cpu"]
     ax.set_xlabel("training CPU hours (process time)")
@@ -57,7 +76,8 @@ def main() -> None:
     mem.set_ylabel("resident memory (MiB)")
     mem.set_ylim(bottom=0)
     mem.grid(alpha=0.3)
-    mem.legend(fontsize=7)
+    if mem.lines:  # runs read from --earlier have no memory curve
+        mem.legend(fontsize=7)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)

@@ -52,6 +52,32 @@ def test_floor_reproduces_flat_and_smooth_frames():
         assert abs(inner.mean() * 255 - 140) < 0.3 and inner.std() * 255 < 0.5, cell
 
 
+def test_the_encoder_sees_the_frame_resized_with_the_working_filter():
+    """The frame reaches the encoder at its working size through WORKING_INTERPOLATION (Lanczos: the area
+    filter blurs at ratios between 1 and 2, as training never shows the network), 8-bit, in [0, 1]; at
+    cells of the stride it is not resized at all."""
+    from hypergs_blender.encode import WORKING_INTERPOLATION
+    from hypergs_blender.io.images import resize_exact
+    seen = []
+
+    class Recording(FloorEncoder):
+        def predict(self, frames, cells=None):
+            seen.append(frames.copy())
+            return super().predict(frames, cells)
+
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 256, (1, 60, 90, 3), dtype=np.uint8)
+    layout = plan_layout(90, 60, 4, cell=5)  # 18 x 12 cells: a 72 x 48 working frame
+    encode_frames(frames, Recording(), layout)
+    assert WORKING_INTERPOLATION == "LANCZOS"
+    lanczos = resize_exact(frames[0], 72, 48, WORKING_INTERPOLATION).astype(np.float32) / 255
+    np.testing.assert_array_equal(seen.pop()[0], lanczos)
+    assert np.abs(resize_exact(frames[0], 72, 48).astype(np.float32) / 255 - lanczos).max() > 0.05  # not the area filter's
+    exact = np.ascontiguousarray(frames[:, :, :88])  # 22 x 15 cells of 4 px: the frame itself
+    encode_frames(exact, Recording(), plan_layout(88, 60, 4, cell=4))
+    np.testing.assert_array_equal(seen.pop()[0], exact[0].astype(np.float32) / 255)
+
+
 def test_encode_frames_stretches_back_exactly():
     """Working size 17 x 9 cells on a 100 x 50 frame: the Gaussians are stretched by the non-uniform
     factors; rendered at the frame's size they match the working-size render resized."""

@@ -156,14 +156,15 @@ def write_image(path, rgb: np.ndarray) -> None:
             raise HyperGSError(f"{path}: cannot write ({one_line(error)})")
 
 
-def resize_exact(image: np.ndarray, width: int, height: int) -> np.ndarray:
-    """RGB uint8 array resized to exactly width x height (area filter; aspect not kept)."""
+def resize_exact(image: np.ndarray, width: int, height: int, interpolation: str = "AREA") -> np.ndarray:
+    """RGB uint8 array resized to exactly width x height (aspect not kept) with one of swscale's filters
+    (PyAV's names: AREA, the default, averages what each output pixel covers; LANCZOS, BICUBIC, ...)."""
     import av
 
     if image.shape[1] == width and image.shape[0] == height:
         return image
     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
-    return frame.to_ndarray(format="rgb24", width=width, height=height, interpolation="AREA")
+    return frame.to_ndarray(format="rgb24", width=width, height=height, interpolation=interpolation)
 
 
 def resize_crop(image: np.ndarray, size: int) -> np.ndarray:

@@ -50,7 +50,7 @@ def main() -> None:
     fig, (ax, mem) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
     rows = ["run,step,cpu_hours,wall_hours,metric,psnr"]
     earlier = read_csv(args.earlier) if args.earlier else []
-    offset = earlier[-1][1][-1]["cpu"] if args.chain and earlier else 0.0  # CPU seconds before this run (--chain)
+    offset = 0.0  # CPU seconds before this run (--chain; the CSV's runs hold theirs)
     colours: dict[str, str] = {}  # one colour per metric across runs
     runs = [(name, evals, None) for name, evals in earlier] + [(run.name, *read_log(run)) for run in args.runs]
     for index, (name, evals, steps) in enumerate(runs):

@@ -163,6 +163,20 @@ def test_coarser_levels_start_switched_off():
         assert (deeper(frames) - plain(frames)).abs().max() > 1e-3
 
 
+def test_conv_geometry_keeps_float32_under_half_precision():
+    """Under bf16 autocast (a GPU's mixed precision) the means stay where float32 puts them: a bf16 cell
+    grid would round them to a 0.5-px lattice at 128 px (-0.9 dB for the bundled network)."""
+    model = random_conv(ConvConfig(width=8, stem=4, stem_level="cell", blocks=(2,)))
+    frames = torch.rand(2, 128, 128, 3)
+    with torch.no_grad():
+        exact = model(frames)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            half = model(frames)
+    assert half.dtype == torch.float32
+    error_px = (half[..., :2] - exact[..., :2]).abs().max() * 128 / 2
+    assert error_px < 0.05, f"means moved {error_px:.3f} px under bf16"
+
+
 def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
     """The cell stem is one 3x3 conv over cells: a cell's stem feature depends on its own pixels and
     its 8 neighbours' (a pixel two cells away changes nothing); the 'pixel' stem's reaches 2 pixels

@@ -377,3 +377,40 @@ def test_an_export_records_the_weights_its_run_started_from(tmp_path, monkeypatc
     parent = card["info"]["train_args"]["init_from"]
     assert parent["path"] == args.init_from and parent["info"]["step"] == 2 and card["info"]["step"] == 3
     assert "init_from" not in parent["info"]["train_args"]  # the first run started from nothing
+
+
+def test_steps_auto_fits_the_schedule_to_the_sitting(tmp_path, monkeypatch):
+    """--steps auto --minutes 1: the warm-up's rate (a clock at one second per step) sizes the cosine to
+    AUTO_TIME_SHARE of the time left, so the run ends at its schedule's end, at the lowest learning rate,
+    before the minute is out; the checkpoint records the number, so a resume keeps that schedule."""
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    ticks = iter(range(10 ** 6))
+    monkeypatch.setattr(train.time, "perf_counter", lambda: 0.5 * next(ticks))  # two readings per step
+    args = training_args(tmp_path / "run", "auto", "conv", minutes=1)
+    args.warmup = 10
+    train.run(args)
+    checkpoint = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    steps = json.loads(checkpoint["args"])["steps"]
+    assert 40 <= steps <= 57 and checkpoint["step"] == steps
+    records = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    lrs = [r["lr"] for r in records if "lr" in r]
+    assert len(lrs) == steps and lrs[-1] == pytest.approx(args.lr * args.min_lr_ratio, rel=0.02)
+    assert [r["step"] for r in records if "eval" in r] == [steps]
+
+
+def test_steps_auto_needs_minutes_a_warmup_and_a_run_in_its_warmup(tmp_path, monkeypatch):
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    with pytest.raises(HyperGSError, match="--minutes"):
+        train.run(training_args(tmp_path / "a", "auto", "conv"))
+    args = training_args(tmp_path / "b", "auto", "conv", minutes=1)  # --warmup 2
+    with pytest.raises(HyperGSError, match="--warmup of 10"):
+        train.run(args)
+    args = training_args(tmp_path / "c", 12, "conv")
+    args.warmup = 10
+    train.run(args)  # past its warm-up
+    args = training_args(tmp_path / "c", "auto", "conv", minutes=1)
+    args.warmup = 10
+    with pytest.raises(HyperGSError, match="past its warm-up"):
+        train.run(args)

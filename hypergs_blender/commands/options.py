@@ -292,6 +292,16 @@ class PatchGrid(ArgType):
         return columns, rows
 
 
+class ScheduleSteps(ArgType):
+    """`hypergs train --steps`: a whole number of steps, or 'auto' (the trainer sizes the schedule to
+    --minutes from the warm-up's step rate; returned as the text)."""
+
+    refused = ("abc", "", "0", "-5", "1.5", "Auto ")
+
+    def __call__(self, text: str) -> int | str:
+        return text if text == "auto" else positive_int(text)
+
+
 def _check_limit(limit: limits.Limit, value) -> None:
     try:
         limit.check(value, "")
@@ -310,6 +320,7 @@ non_negative_float = Real(0.0, inclusive=True)
 fraction = Real(0.0, inclusive=True, high=1.0)
 text = Text()
 config_item = ConfigItem()
+schedule_steps = ScheduleSteps()
 lr_scale = LrScale()
 name = Name()
 input_video = InputVideo()

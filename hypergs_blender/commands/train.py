@@ -45,7 +45,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--data-root", default=DEFAULT_ROOT, type=options.text)
     p.add_argument("--eval-videos", nargs="*", default=[], type=options.input_video,
                    help="videos whose PSNR is logged at every evaluation (reporting only)")
-    p.add_argument("--steps", type=options.positive_int, default=20000, help="total steps of the cosine schedule")
+    p.add_argument("--steps", type=options.schedule_steps, default=20000,
+                   help="total steps of the cosine schedule; auto (with --minutes): as many as the sitting's time "
+                        "allows at the warm-up's step rate (a lent GPU, a CPU session's background)")
     p.add_argument("--minutes", type=options.non_negative_float, default=None,
                    help="stop (with a checkpoint) after this wall time")
     p.add_argument("--batch", type=options.positive_int, default=None,

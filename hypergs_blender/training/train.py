@@ -64,6 +64,12 @@ FLAT_WINDOW = 9
 SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "profile", "given", "command"})
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
 FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale")
+# --steps auto: the schedule's length, set at the end of the warm-up (whose learning rates do not depend
+# on it) from the sitting's step rate so far, for this share of the --minutes left (evaluations and
+# checkpoints take the rest)
+AUTO_STEPS = "auto"
+AUTO_TIME_SHARE = 0.95
+AUTO_MIN_WARMUP = 10
 
 
 def cosine_lr(step: int, total: int, warmup: int, base: float, min_ratio: float) -> float:
@@ -287,6 +293,20 @@ def resume_options(args, recorded: dict) -> list[str]:
     return changed
 
 
+def auto_steps(step: int, steps_done: int, seconds: float, budget_seconds: float, broadcast_device=None) -> int:
+    """--steps auto: the schedule's total once `steps_done` steps of this sitting took `seconds` of its
+    `budget_seconds`: the steps that fit in AUTO_TIME_SHARE of the time left at that rate (at least one
+    more). Under torchrun rank 0's number, broadcast (broadcast_device: the tensors' device), so that
+    every rank runs the same schedule."""
+    left = max(0.0, budget_seconds - seconds) * AUTO_TIME_SHARE
+    total = step + max(1, int(steps_done / max(seconds, 1e-9) * left))
+    if broadcast_device is not None:
+        value = torch.tensor([total], device=broadcast_device)
+        dist.broadcast(value, 0)
+        total = int(value)
+    return total
+
+
 def run(args) -> None:
     """Train with the options of `hypergs train` (commands/train.py), resuming from args.out."""
     out = Path(args.out)
@@ -295,6 +315,9 @@ def run(args) -> None:
     changed = resume_options(args, json.loads(resume["args"])) if resume else []
     if args.distill and not args.init_from:
         raise HyperGSError("--distill needs --init-from: a warm start whose head reads the teacher's features")
+    if args.steps == AUTO_STEPS and (args.minutes is None or args.warmup < AUTO_MIN_WARMUP):
+        raise HyperGSError(f"--steps auto sizes the schedule to --minutes from the step rate of the warm-up: give "
+                           f"--minutes and a --warmup of {AUTO_MIN_WARMUP} steps or more")
     distributed = "RANK" in os.environ
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -342,6 +365,9 @@ def run(args) -> None:
             regularizer.load_state_dict(resume["regularizer"])
         optimizer.load_state_dict(resume["optimizer"])
         step, wall, cpu = int(resume["step"]), float(resume["wall_seconds"]), float(resume["cpu_seconds"])
+        if args.steps == AUTO_STEPS and step >= args.warmup:
+            raise HyperGSError(f"--steps auto: the run in {out} is past its warm-up (step {step}), so its schedule "
+                               f"is set; give --steps N to change its length")
         torch.set_rng_state(resume["torch_rng"])
     train_model = torch.nn.parallel.DistributedDataParallel(model) if distributed else model
 
@@ -373,15 +399,17 @@ def run(args) -> None:
         os.replace(tmp, checkpoint_path)
 
     from tqdm import tqdm
-    bar = tqdm(total=args.steps, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
+    bar = tqdm(total=None if args.steps == AUTO_STEPS else args.steps, initial=step, disable=rank != 0,
+               dynamic_ncols=True, mininterval=5)
     started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
+    sitting_first_step = step
     amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
     profiler = step_profiler(args.profile, device, out) if args.profile and rank == 0 else None
     try:
-        while step < args.steps:
+        while args.steps == AUTO_STEPS or step < args.steps:
             with record_function("data"):
                 frames, inputs = (None if a is None else torch.from_numpy(a).to(device)
-                                  for a in prefetch.get(step, args.steps))
+                                  for a in prefetch.get(step, math.inf if args.steps == AUTO_STEPS else args.steps))
             n = gaussians_for_step(args.gaussians, args.seed, step)
             lattice = None if conv else lattice_for_step(n, args.seed, step, rank, frames.shape[0])
             lr = cosine_lr(step, args.steps, args.warmup, args.lr, args.min_lr_ratio)
@@ -404,6 +432,12 @@ def run(args) -> None:
                 profiler.step()
             step += 1
             wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
+            if args.steps == AUTO_STEPS and step >= args.warmup:
+                seconds = time.perf_counter() - run_started
+                args.steps = bar.total = auto_steps(step, step - sitting_first_step, seconds, args.minutes * 60,
+                                                    device if distributed else None)
+                bar.write(f"--steps auto: {args.steps} steps ({(step - sitting_first_step) / seconds:.2f} steps/s "
+                          f"over the warm-up)")
             if rank == 0:
                 train_psnr = float(psnr_from_mse(float(mse.detach())))
                 bar.set_postfix(psnr=f"{train_psnr:.2f}", refresh=False)

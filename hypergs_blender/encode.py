@@ -344,6 +344,14 @@ class FloorEncoder:
         return out.reshape(b, rows * cols, 8)
 
 
+def working_frames(frames: np.ndarray, width: int, height: int) -> np.ndarray:
+    """uint8 frames [T, H, W, 3] -> what the network sees: float32 [T, height, width, 3] in [0, 1], resized
+    with WORKING_INTERPOLATION (the runtime's encode and the trainer's evaluation alike)."""
+    work = np.stack([resize_exact(f, width, height, WORKING_INTERPOLATION) for f in frames]).astype(np.float32)
+    work /= 255
+    return work
+
+
 def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
     steps against the frames (refine.refine_params, needs torch) when asked. Frames go to the encoder
@@ -354,9 +362,7 @@ def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) 
     per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height * clip)) * clip
     params = np.empty((len(frames), layout.count, 8), np.float32)
     for start in range(0, len(frames), per_pass):
-        work = np.stack([resize_exact(f, layout.work_width, layout.work_height, WORKING_INTERPOLATION)
-                         for f in frames[start:start + per_pass]]).astype(np.float32)
-        work /= 255
+        work = working_frames(frames[start:start + per_pass], layout.work_width, layout.work_height)
         params[start:start + len(work)] = encoder.predict(work, (layout.cols, layout.rows))
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     if (tx, ty) != (1, 1):

@@ -32,11 +32,10 @@ import torch.distributed as dist
 import torch.nn.functional as F
 from torch.profiler import ProfilerActivity, profile, record_function, schedule
 
-from ..encode import WORKING_INTERPOLATION
+from ..encode import working_frames
 from ..errors import HyperGSError
 from ..gaussians import lattice_anchors
 from ..io.frames import read_frames
-from ..io.images import resize_exact
 from .. import raster
 from ..metrics import psnr, psnr_from_mse
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
@@ -498,9 +497,9 @@ class Evaluator:
     def _input(model, frames: np.ndarray, cell: int) -> np.ndarray:
         if isinstance(model, ConvGS):
             work = EVAL_SIZE * model.cfg.stride // cell
-            return np.stack([resize_exact(f, work, work, WORKING_INTERPOLATION) for f in frames]).astype(np.float32) / 255
+            return working_frames(frames, work, work)
         canvas, t = model.cfg.canvas, model.cfg.clip_frames
-        clips = np.stack([resize_exact(f, canvas, canvas, WORKING_INTERPOLATION) for f in frames]).astype(np.float32) / 255
+        clips = working_frames(frames, canvas, canvas)
         return clips.reshape(-1, t, canvas, canvas, 3)  # the evaluation sets hold multiples of 4 frames
 
     @torch.no_grad()

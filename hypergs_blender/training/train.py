@@ -435,8 +435,9 @@ def run(args) -> None:
                 seconds = time.perf_counter() - run_started
                 args.steps = bar.total = auto_steps(step, step - sitting_first_step, seconds, args.minutes * 60,
                                                     device if distributed else None)
-                bar.write(f"--steps auto: {args.steps} steps ({(step - sitting_first_step) / seconds:.2f} steps/s "
-                          f"over the warm-up)")
+                if rank == 0:  # tqdm.write prints on a disabled bar too
+                    bar.write(f"--steps auto: {args.steps} steps ({(step - sitting_first_step) / seconds:.2f} "
+                              f"steps/s over the warm-up)")
             if rank == 0:
                 train_psnr = float(psnr_from_mse(float(mse.detach())))
                 bar.set_postfix(psnr=f"{train_psnr:.2f}", refresh=False)

@@ -363,8 +363,11 @@ def test_bad_output_suffix_or_folder_is_refused_before_the_encode(tmp_path, caps
         assert_one_line_error(code, err, needle)
 
 
-@pytest.mark.parametrize("sig,status,word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
-def test_ctrl_c_and_sigterm_clean_up_and_say_one_line(tmp_path, video, sig, status, word):
+@pytest.mark.parametrize("sig,word", [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "terminated")])
+def test_ctrl_c_and_sigterm_clean_up_say_one_line_and_end_by_the_signal(tmp_path, video, sig, word):
+    """After the cleanup the process dies of the signal (a shell reads 128 + its number and a shell
+    loop stops), whatever CPython's own flag for an unhandled Ctrl-C says: a plain exit 130 came
+    back as -2 now and then, when Ctrl-C landed in numba's JIT."""
     proc = subprocess.Popen([sys.executable, "-m", "hypergs_blender", "encode", video.name, "-o", "out.hgs",
                              "--encoder", "floor", "--gaussians", "200", "--size", "64", "--refine", "400"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -375,7 +378,7 @@ def test_ctrl_c_and_sigterm_clean_up_and_say_one_line(tmp_path, video, sig, stat
     time.sleep(0.5)
     proc.send_signal(sig)
     _, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == status, stderr
+    assert proc.returncode == -sig, stderr
     assert_one_line_error(proc.returncode, stderr.splitlines(), word)
     assert [f.name for f in tmp_path.iterdir()] == [video.name]
 

@@ -3,12 +3,19 @@
 
 Whatever goes wrong ends in one line on stderr, `hypergs <command>: error: ...`, and a non-zero exit
 status, never a traceback: a bad argument (exit 2, options.py), bad input or an unwritable output
-(HyperGSError, exit 1), an unexpected OSError such as a full disk (exit 1), Ctrl-C (exit 130) and
-SIGTERM (exit 143). Temporary files of unfinished outputs are removed on every exit (io/files.py).
+(HyperGSError, exit 1), an unexpected OSError such as a full disk (exit 1), Ctrl-C and SIGTERM. Temporary
+files of unfinished outputs are removed on every exit (io/files.py).
+
+Ctrl-C and SIGTERM, once the line is printed and the files are cleaned up, end the process by that
+signal (on POSIX; a shell reads 130 / 143, a parent process -2 / -15): a shell loop over encodes then
+stops at Ctrl-C instead of going on with the next one, and the status no longer depends on whether
+CPython itself saw the KeyboardInterrupt leave a nested evaluation (it then re-raises SIGINT at exit
+whatever status the command asked for, as it did now and then when Ctrl-C landed in numba's JIT).
 """
 from __future__ import annotations
 
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -69,6 +76,7 @@ def main(argv=None) -> None:
     in_main = threading.current_thread() is threading.main_thread()
     handled = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, _interrupt) for s in handled} if in_main else {}
+    status = 0
     try:
         args.func(args)
     except BaseException as e:
@@ -77,11 +85,26 @@ def main(argv=None) -> None:
             raise  # a bug: its traceback
         status, message = failure
         print(f"{command.prog}: error: {one_line(message)}", file=sys.stderr)
-        sys.exit(status)
     finally:
         files.discard_pending()
         for s, handler in previous.items():
             signal.signal(s, handler)
+    if status in _EXIT_SIGNALS and in_main and os.name == "posix":
+        _end_by_signal(_EXIT_SIGNALS[status])
+    if status:
+        sys.exit(status)
+
+
+def _end_by_signal(signum: int) -> None:
+    """Die of `signum` with its default action, as a Unix tool that caught it should (module docstring)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signum])  # delivered by now unless it was blocked
+
+
+_EXIT_SIGNALS = {130: signal.SIGINT, 143: signal.SIGTERM}  # the statuses _failure gives an interruption
 
 
 def _failure(error: BaseException) -> tuple[int, str] | None:

@@ -89,8 +89,8 @@ def main(argv=None) -> None:
         files.discard_pending()
         for s, handler in previous.items():
             signal.signal(s, handler)
-    if status in _EXIT_SIGNALS and in_main and os.name == "posix":
-        _end_by_signal(_EXIT_SIGNALS[status])
+    if status > 128 and in_main and os.name == "posix":  # an interruption: 128 + its signal (_failure)
+        _end_by_signal(status - 128)
     if status:
         sys.exit(status)
 
@@ -104,9 +104,6 @@ def _end_by_signal(signum: int) -> None:
     signal.pthread_sigmask(signal.SIG_UNBLOCK, [signum])  # delivered by now unless it was blocked
 
 
-_EXIT_SIGNALS = {130: signal.SIGINT, 143: signal.SIGTERM}  # the statuses _failure gives an interruption
-
-
 def _failure(error: BaseException) -> tuple[int, str] | None:
     """(exit status, message) of an error that ends a command with one line; None for the others.
     An interruption counts wherever it arrived: a library may wrap it (numba raises SystemError with
@@ -114,9 +111,9 @@ def _failure(error: BaseException) -> tuple[int, str] | None:
     cause = error
     while cause is not None:
         if isinstance(cause, Terminated):
-            return 143, "terminated"
+            return 128 + signal.SIGTERM, "terminated"
         if isinstance(cause, KeyboardInterrupt):
-            return 130, "interrupted"
+            return 128 + signal.SIGINT, "interrupted"
         cause = cause.__cause__ or cause.__context__
     if isinstance(error, HyperGSError):
         return 1, str(error)

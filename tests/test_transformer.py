@@ -243,6 +243,27 @@ def test_train_then_export_a_transformer_run(tmp_path, monkeypatch, capsys):
     assert encoder.gaussians == (9, 100) and encoder.canvas == 32
 
 
+def test_a_warm_started_transformer_goes_on_from_the_thresholds_its_card_recorded(tmp_path, monkeypatch):
+    """`hypergs train --init-from` exported transformer weights: the adaptive regularizer starts from the
+    thresholds the weights' card recorded (their run had adapted them), not from the paper's initial ones."""
+    from hypergs_blender.training import train
+    monkeypatch.setitem(train.PRESETS, "small", TransformerConfig(**TINY))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    common = ["--preset", "small", "--data", "procedural:1", "--steps", "1", "--batch", "1", "--gaussians", "9:100",
+              "--warmup", "1", "--threads", "1"]
+    first, second = tmp_path / "first", tmp_path / "second"
+    main(["train", "--out", str(first), *common])
+    main(["export", str(first)])
+    card_path = first / "export" / "hypergs_transformer.json"
+    card = json.loads(card_path.read_text())
+    card["info"]["train_args"]["regularizer"] = {"erank_ema": 1.3, "scale_ema": 7.0}  # the initial: 1.05 / 4.0
+    card_path.write_text(json.dumps(card))
+    main(["train", "--out", str(second), "--init-from", str(card_path.with_suffix(".safetensors")), *common])
+    state = torch.load(second / "checkpoint.pt", weights_only=True)["regularizer"]
+    # its one step moved each EMA 1 % of the way (momentum 0.99) to that batch's percentile
+    assert abs(float(state["erank_ema"]) - 1.3) < 0.01 and abs(float(state["scale_ema"]) - 7.0) < 0.1
+
+
 @pytest.mark.parametrize("preset", ["small", "paper"])
 def test_window_margins_are_whole_patches_beyond_a_quarter_of_the_canvas(preset):
     """Windows whose starts are not whole patches apart tokenize a border differently on its two sides

@@ -90,6 +90,13 @@ def load_checkpoint(path) -> dict:
     return state
 
 
+def recorded_info(weights) -> dict | None:
+    """The training record ("info") of the card beside exported weights (<name>.json next to
+    <name>.safetensors), or None where there is no card."""
+    card = Path(weights).with_suffix(".json")
+    return json.loads(card.read_text()).get("info") if card.is_file() else None
+
+
 def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     """Write the weights of `run`/checkpoint.pt into `out` as `name` (default: its design's name,
     network.DEFAULT_NAMES); returns the name and the training info recorded."""
@@ -109,9 +116,7 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     train_args = {k: args[k] for k in keys if k in args}
     for key in ("init_from", "distill"):  # the weights it started from, with their own card's record: the chain
         if args.get(key):
-            parent = Path(args[key]).with_suffix(".json")
-            info = json.loads(parent.read_text()).get("info") if parent.is_file() else None
-            train_args[key] = {"path": args[key], "info": info}
+            train_args[key] = {"path": args[key], "info": recorded_info(args[key])}
     if "regularizer" in state:  # the transformer's adaptive thresholds, for the record
         train_args["regularizer"] = {k: round(float(v), 4) for k, v in state["regularizer"].items()}
     info = dict(step=int(state["step"]), cpu_hours=round(float(state["cpu_seconds"]) / 3600, 3),

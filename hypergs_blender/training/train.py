@@ -41,7 +41,7 @@ from ..metrics import psnr, psnr_from_mse
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
 from . import data
-from .export import load_checkpoint
+from .export import load_checkpoint, recorded_info
 from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
 from .sources import make_batch
@@ -352,6 +352,12 @@ def run(args) -> None:
             parameter.requires_grad_(not name.startswith("head."))
     # the paper's thresholds (s0 32 px, ceiling 80 px at its 8 px spacing: N = 1000 on 256^2) in grid cells
     regularizer = None if conv else AdaptiveRegularizer(s0=4.0, scale_ceiling=10.0).to(device)
+    if regularizer is not None and not resume and args.init_from:
+        # go on from the thresholds the warm start's own run adapted (its card records them): restarting
+        # them at the paper's values would penalise its Gaussians against thresholds it had left behind
+        thresholds = ((recorded_info(args.init_from) or {}).get("train_args") or {}).get("regularizer")
+        if thresholds:
+            regularizer.load_state_dict({k: torch.tensor(float(v)) for k, v in thresholds.items()})
     if conv:
         # a run keeps the parameter groups it started with (a checkpoint's optimizer state needs them)
         optimizer = torch.optim.AdamW(lr_groups(model, dict(args.lr_scale or {})), lr=args.lr, weight_decay=1e-4)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..encode import encode_frames, frames_layout
 from ..gaussians import GaussianVideo
+from ..io.codec import clip_bits
 from ..io.hgs import load_hgs, save_hgs
 from ..metrics import ssim
 from ..network import resolve_encoder
@@ -43,7 +44,7 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                   frames: int | None = 24, start: int = 0, refine_steps=(0,), encoder="network",
                   backend: str = "auto", weights=None, device: str = "auto",
                   codec: str = "libx265", preset: str = "medium", group_size: int = 16, decode_repeats: int = 3,
-                  position_bits: int | None = 10, progress=None) -> dict:
+                  position_bits: int | None = None, progress=None) -> dict:
     """Matched-quality pairs: Gaussians (N, refine K, .hgs bit depth) against an FFmpeg codec's CRFs on
     the same consecutive frames at the same size.
 
@@ -51,9 +52,9 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
     frames, bpp, encode and decode frames/s (colour conversion included). Ours: encoder (+ refine) on
     `device`, then .hgs at each bit depth: encode frames/s = encoder + refine + .hgs write; decode
     frames/s = .hgs read + render (numpy/numba path on the CPU, torch on CUDA; medians of
-    `decode_repeats` runs). position_bits: the means (x, y) get this many bits where a depth is lower
-    (at 6 or 4 bits the grid of means snaps to 64 or 16 positions and larger N collapse; None: uniform
-    depths). Pairs: for every row of
+    `decode_repeats` runs). position_bits: the means (x, y) get this many bits where a depth is lower;
+    None: the depths the .hgs writer itself gives a clip (codec.clip_bits: the means get enough bits for
+    the Gaussians' spacing), so the rows are the files `hypergs encode` and Blender write. Pairs: for every row of
     ours, the CRF whose PSNR is closest, and x265's bpp and frames/s interpolated at our PSNR."""
     device = resolve_device(device)
     if isinstance(encoder, str):
@@ -116,12 +117,13 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                     video = GaussianVideo(p, w, h, info.fps, (layout.cols, layout.rows))
                     for b in bits:
                         started = time.perf_counter()
-                        depths = (position_bits,) * 2 + (b,) * 6 if position_bits and position_bits > b else b
+                        depths = ((position_bits,) * 2 + (b,) * 6 if position_bits and position_bits > b
+                                  else clip_bits(b, w, h, video.num_gaussians))
                         nbytes = save_hgs(video, clip_path, bits=depths, group_size=group_size)
                         write_s = time.perf_counter() - started
                         read_s, decoded = timed(lambda: load_hgs(clip_path), decode_repeats)
                         render_s, rendered = timed(lambda: render(decoded.params, w, h, device), decode_repeats)
-                        row["hgs"].append({"bits": b, "position_bits": max(b, position_bits or 0), "bytes": nbytes, "bpp": 8 * nbytes / pixels,
+                        row["hgs"].append({"bits": b, "position_bits": depths[0], "bytes": nbytes, "bpp": 8 * nbytes / pixels,
                                            "psnr": float(np.mean(psnr_of(rendered, clip))),
                                            "ssim": float(np.mean(ssim(rendered, target))),
                                            "encode_fps": t / (encoder_s + refine_s + write_s),

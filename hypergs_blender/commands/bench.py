@@ -150,8 +150,9 @@ def _vs_x265(parser):
     parser.add_argument("--codec", default="libx265", type=options.text)
     parser.add_argument("--preset", default="medium", type=options.text)
     parser.add_argument("--group-size", type=GROUP_SIZE, default=16)
-    parser.add_argument("--position-bits", type=POSITION_BITS, default=10,
-                        help="bits of the means where --bits is lower (0: every parameter at --bits)")
+    parser.add_argument("--position-bits", type=POSITION_BITS, default=0,
+                        help="bits of the means where --bits is lower (0: the depths `hypergs encode` writes, "
+                             "enough for the Gaussians' spacing)")
     _bench_options(parser)
 
     def run(args) -> dict:

@@ -143,3 +143,42 @@ def test_frame_path():
     assert frame_path("out/f.{frame}.png", 12) == "out/f.12.png"
     assert frame_path("out/f.{frame:05d}.png", 12) == "out/f.00012.png"
     assert frame_path("out/f.png", 3) == "out/f_0003.png"
+
+
+def test_resize_with_a_kept_reformatter_is_a_fresh_one_at_every_size_filter_and_thread():
+    """resize_exact keeps one swscale context per thread (io.images.kept_reformatter): as sizes and
+    filters change from call to call, and from two threads at once, every result is the pixels a fresh
+    context gives."""
+    import threading
+
+    import av
+
+    from hypergs_blender.io.images import resize_exact
+
+    rng = np.random.default_rng(5)
+    jobs = [(rng.integers(0, 256, (h, w, 3), dtype=np.uint8), ow, oh, interpolation)
+            for h, w, ow, oh in [(64, 96, 40, 30), (30, 40, 96, 64), (64, 96, 40, 30), (17, 23, 8, 9)]
+            for interpolation in ("AREA", "LANCZOS")]
+
+    def fresh(image, ow, oh, interpolation):
+        frame = av.VideoFrame.from_ndarray(image, format="rgb24")
+        return frame.to_ndarray(format="rgb24", width=ow, height=oh, interpolation=interpolation)
+
+    expected = [fresh(*job) for job in jobs]
+    results = {}
+
+    def run(name, order):
+        results[name] = [(i, resize_exact(*jobs[i])) for _ in range(20) for i in order]
+
+    threads = [threading.Thread(target=run, args=("forward", range(len(jobs))), daemon=True),
+               threading.Thread(target=run, args=("backward", range(len(jobs) - 1, -1, -1)), daemon=True)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=60)
+        assert not thread.is_alive(), "a resize hung (one swscale context used by two threads deadlocks)"
+    assert sorted(results) == ["backward", "forward"]
+    for done in results.values():
+        assert len(done) == 20 * len(jobs)
+        for i, got in done:
+            np.testing.assert_array_equal(got, expected[i])

@@ -12,6 +12,7 @@ Writing goes through files.AtomicOutput: a temporary file renamed onto the name 
 """
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -164,7 +165,24 @@ def resize_exact(image: np.ndarray, width: int, height: int, interpolation: str 
     if image.shape[1] == width and image.shape[0] == height:
         return image
     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
-    return frame.to_ndarray(format="rgb24", width=width, height=height, interpolation=interpolation)
+    resized = kept_reformatter().reformat(frame, format="rgb24", width=width, height=height,
+                                          interpolation=interpolation)
+    return resized.to_ndarray()
+
+
+_thread_state = threading.local()
+
+
+def kept_reformatter():
+    """This thread's av VideoReformatter. A frame's own `to_ndarray(width=...)` builds a new swscale
+    context, filter tables included, on every call: that was 3/4 of a small frame's resize (256² to
+    220², Lanczos: 11 ms against 2.7 ms with a kept one, the same pixels). The kept one rebuilds only
+    when the sizes or filter change; one per thread, as a context must not be used by two at once."""
+    from av.video.reformatter import VideoReformatter
+
+    if not hasattr(_thread_state, "reformatter"):
+        _thread_state.reformatter = VideoReformatter()
+    return _thread_state.reformatter
 
 
 def resize_crop(image: np.ndarray, size: int) -> np.ndarray:

@@ -414,3 +414,30 @@ def test_steps_auto_needs_minutes_a_warmup_and_a_run_in_its_warmup(tmp_path, mon
     args.warmup = 10
     with pytest.raises(HyperGSError, match="past its warm-up"):
         train.run(args)
+
+
+def test_precision_runs_the_convolutions_in_bfloat16_where_asked_and_the_rest_in_float32(tmp_path, monkeypatch):
+    """--precision: auto is float32 on a CPU; bfloat16 runs the network's convolutions in bfloat16 while
+    its output (geometry, colours) and the weights stay float32, and a run trains with it."""
+    model = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    frames = torch.rand(2, 32, 32, 3)
+    seen = []
+    model.head.register_forward_hook(lambda module, inputs, output: seen.append(output.dtype))
+    cpu = torch.device("cpu")
+    for precision, dtype in (("auto", torch.float32), ("float32", torch.float32), ("bfloat16", torch.bfloat16)):
+        with train.forward_autocast(cpu, precision):
+            params = model(frames)
+        assert seen.pop() == dtype and params.dtype == torch.float32, precision
+    with pytest.raises(ValueError, match="unknown precision"):
+        train.forward_autocast(cpu, "float16")
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    args = training_args(tmp_path / "run", 4, "conv")
+    args.precision = "bfloat16"
+    train.run(args)
+    checkpoint = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert checkpoint["step"] == 4 and json.loads(checkpoint["args"])["precision"] == "bfloat16"
+    assert all(v.dtype == torch.float32 for v in checkpoint["model"].values())
+    losses = [json.loads(line)["loss"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()
+              if "loss" in line]
+    assert len(losses) == 4 and all(np.isfinite(losses))

@@ -9,7 +9,7 @@ from ..model import PRESETS
 from ..network import BUNDLED_NAME, DEFAULT_NAMES, WEIGHTS_DIR
 from ..training.data import DEFAULT_SPEC
 from ..training.sources import DEFAULT_ROOT
-from ..training.train import LOSSES
+from ..training.train import LOSSES, PRECISIONS
 from . import options
 
 
@@ -76,6 +76,10 @@ def add_commands(subparsers) -> None:
                    help="the squared error of a flat pixel (the clean frame's std under 1/255 around it, "
                         "eval's flat-ripple criterion) counts 1 + this times a detailed one's: flat regions "
                         "rendered flat")
+    p.add_argument("--precision", choices=PRECISIONS, default="auto",
+                   help="the network's forward pass: auto, bfloat16 on CUDA and float32 on a CPU; bfloat16 on a "
+                        "CPU pays where it has AMX (Intel Xeon since Sapphire Rapids); the render and the "
+                        "weights stay float32")
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)

@@ -52,6 +52,7 @@ EVAL_CELLS = (8, 4)  # source pixels per Gaussian at evaluation: 1024 and 4096 G
 ARCH_DEFAULTS = {"conv": dict(lr=1e-3, clip=0.5, batch=8, loss="mse"),
                  "transformer": dict(lr=2e-3, clip=1.0, batch=4, loss="mse")}
 LOSSES = ("mse", "psnr")
+PRECISIONS = ("auto", "float32", "bfloat16")
 # psnr loss: a frame's error counts down to this MSE (50 dB; an 8-bit frame's own rounding is ~59 dB)
 PSNR_LOSS_FLOOR = 1e-5
 # --flat-weight: a pixel is flat where the clean frame's std over the FLAT_WINDOW x FLAT_WINDOW pixels
@@ -60,7 +61,8 @@ PSNR_LOSS_FLOOR = 1e-5
 FLAT_STD = 1 / 255
 FLAT_WINDOW = 9
 # Options of this sitting (the machine, how long), not of the run: a resume never takes them from the checkpoint.
-SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "profile", "given", "command"})
+SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "precision", "profile", "given",
+                             "command"})
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
 FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale")
 # --steps auto: the schedule's length, set at the end of the warm-up (whose learning rates do not depend
@@ -163,6 +165,17 @@ def flat_pixel_weights(frames: torch.Tensor, flat_weight: float) -> torch.Tensor
     std = (square - mean * mean).clamp_min(0).sqrt()
     flat = (std < FLAT_STD).all(1, keepdim=True).permute(0, 2, 3, 1)
     return (1 + flat_weight * flat.to(frames.dtype)).reshape(*shape[:-1], 1)
+
+
+def forward_autocast(device: torch.device, precision: str = "auto") -> torch.autocast:
+    """The autocast the training step's forward pass runs in (--precision): "auto" is bfloat16 on CUDA,
+    float32 on a CPU. The network's convolutions then run in bfloat16; its geometry, the render and the
+    weights stay float32 (ConvGS.forward casts its head's output)."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"unknown precision {precision!r} ({', '.join(PRECISIONS)})")
+    if precision == "auto":
+        precision = "bfloat16" if device.type == "cuda" else "float32"
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16")
 
 
 def training_loss(model, frames: torch.Tensor, lattice: tuple[int, np.ndarray] | None, regularizer,
@@ -408,7 +421,7 @@ def run(args) -> None:
                dynamic_ncols=True, mininterval=5)
     started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
     sitting_first_step = step
-    amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
+    amp = forward_autocast(device, getattr(args, "precision", "auto"))
     profiler = step_profiler(args.profile, device, out) if args.profile and rank == 0 else None
     try:
         while args.steps == AUTO_STEPS or step < args.steps:

@@ -421,7 +421,7 @@ def run(args) -> None:
                dynamic_ncols=True, mininterval=5)
     started, cpu_started, run_started = time.perf_counter() - wall, time.process_time() - cpu, time.perf_counter()
     sitting_first_step = step
-    amp = forward_autocast(device, getattr(args, "precision", "auto"))
+    amp = forward_autocast(device, args.precision)
     profiler = step_profiler(args.profile, device, out) if args.profile and rank == 0 else None
     try:
         while args.steps == AUTO_STEPS or step < args.steps:

@@ -102,6 +102,24 @@ def test_zip_contents(zips):
     assert len(wheels) == 5 and all("manylinux" in w for w in wheels)
 
 
+def test_a_file_git_does_not_track_is_found_in_the_zip(tmp_path):
+    """A stray file in the source tree (here: a profile beside the manifest) would ship to every user;
+    the build refuses such a zip. Tracked files and the manifest's wheels are what a zip may hold."""
+    with open(ROOT / "blender_manifest.toml", "rb") as f:
+        wheel = f"wheels/{Path(tomllib.load(f)['wheels'][0]).name}"
+    made = tmp_path / "made.zip"
+    with zipfile.ZipFile(made, "w") as z:
+        for name in ("blender_manifest.toml", "hypergs_blender/encode.py", wheel, "ops/"):
+            z.writestr(name, b"")
+    assert build_extension.untracked_files(made) == []
+    with zipfile.ZipFile(made, "a") as z:
+        z.writestr("onnxruntime_profile__2026-11-27.json", b"{}")
+        z.writestr("hypergs_blender/scratch.py", b"")
+    assert build_extension.untracked_files(made) == ["hypergs_blender/scratch.py",
+                                                     "onnxruntime_profile__2026-11-27.json"]
+    assert build_extension.untracked_files(made, root=tmp_path) == []  # not a git checkout: nothing to compare
+
+
 def test_build_is_idempotent(tmp_path):
     """Wheels already in wheels/ are not fetched again: a second build reuses them."""
     build_extension.build(tmp_path / "first", quiet=True)

@@ -8,7 +8,8 @@
    platform and Python version its file name names; wheels already there are kept, so re-running
    costs nothing;
 2. runs `blender_ext.py build` (from the installed `bpy` wheel, or $BLENDER_EXT) on the repository root;
-3. runs `blender_ext.py validate` on every zip it built.
+3. runs `blender_ext.py validate` on every zip it built, and refuses zips holding a file that git does
+   not track (other than the fetched wheels): a stray file in the tree would ship to every user.
 A failure ends in one line on stderr, `error: ...`, and exit status 1.
 """
 from __future__ import annotations
@@ -21,6 +22,7 @@ import platform
 import subprocess
 import sys
 import tomllib
+import zipfile
 from pathlib import Path
 
 from hypergs_blender.errors import one_line
@@ -95,6 +97,22 @@ def run_ext(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(blender_ext()), *args], capture_output=True, text=True)
 
 
+def untracked_files(zip_path, root=ROOT) -> list[str]:
+    """The zip's files that git does not track and the manifest does not list as a wheel: a stray file in
+    the source tree (a profile, a scratch script, a .blend) that the build would ship to every user.
+    Empty outside a git checkout (a source tarball has nothing to compare with)."""
+    try:
+        listed = subprocess.run(["git", "-C", str(root), "ls-files", "-z"], capture_output=True)
+    except OSError:  # no git on this machine
+        return []
+    if listed.returncode != 0:
+        return []
+    known = set(listed.stdout.decode().split("\0"))
+    known.update(wheel.removeprefix("./") for wheel in manifest().get("wheels", []))
+    with zipfile.ZipFile(zip_path) as archive:
+        return sorted(name for name in archive.namelist() if not name.endswith("/") and name not in known)
+
+
 def validate(zip_path) -> None:
     result = run_ext("validate", str(zip_path))
     if result.returncode != 0:
@@ -121,6 +139,12 @@ def build(output_dir=ROOT / "dist", split_platforms: bool = False, quiet: bool =
         raise BuildError(f"blender_ext.py build made no zip in {output_dir}:\n{result.stdout}")
     for z in zips:
         validate(z)
+    stray = sorted({name for z in zips for name in untracked_files(z)})
+    if stray:
+        for z in zips:
+            z.unlink()
+        raise BuildError(f"the zip would ship {len(stray)} file(s) git does not track: {', '.join(stray[:5])}"
+                         f"{' ...' if len(stray) > 5 else ''}; git add, ignore or remove them, then build again")
     return sorted(zips)
 
 

@@ -59,27 +59,35 @@ def seam_ratio(pred, target, xs=(), ys=(), band: int = 2) -> float | None:
     return float(err[:, near].mean() / max(err[:, ~near].mean(), 1e-12))
 
 
-def flat_ripple(pred, target, window: int, flat: float = 1.0) -> dict:
-    """In `window` x `window` blocks inside flat regions (the block and its 8 neighbours all have a
-    source std < `flat`/255 in every channel, so neither the frame's edge nor an object's is near),
-    the std of the source and of the render (a lattice of blobs at the Gaussians' spacing shows as a
-    render std well above the source's): means over those blocks, in 1/255 units, and their count."""
-    pred, target = _numpy(pred), _numpy(target)
-    h, w = pred.shape[-3:-1]
-    k = max(2, int(window))
+def _block_std(a: np.ndarray, k: int) -> np.ndarray:
+    """[..., H, W, 3] -> the std of each k x k block in 1/255 units [T, H // k, W // k, 3]."""
+    h, w = a.shape[-3:-1]
     hh, ww = h // k * k, w // k * k
+    a = a.reshape(-1, h, w, 3)[:, :hh, :ww]
+    return a.reshape(a.shape[0], hh // k, k, ww // k, k, 3).std(axis=(2, 4)) * 255
 
-    def blocks(a):
-        a = a.reshape(-1, h, w, 3)[:, :hh, :ww]
-        return a.reshape(a.shape[0], hh // k, k, ww // k, k, 3).std(axis=(2, 4)) * 255  # [T, by, bx, 3]
 
-    src, out = blocks(target), blocks(np.clip(pred, 0, 1))
-    flat_blocks = (src < flat).all(-1)
-    keep = np.zeros_like(flat_blocks)
+def flat_blocks(target, window: int, flat: float = 1.0) -> np.ndarray:
+    """Which `window` x `window` blocks of the source lie inside flat regions: the block and its 8
+    neighbours all have a std < `flat`/255 in every channel (so neither the frame's edge nor an object's
+    is near). Bool [T, H // window, W // window]."""
+    flat_block = (_block_std(_numpy(target), max(2, int(window))) < flat).all(-1)
+    keep = np.zeros_like(flat_block)
     keep[:, 1:-1, 1:-1] = True
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
-            keep[:, 1:-1, 1:-1] &= flat_blocks[:, 1 + dy:flat_blocks.shape[1] - 1 + dy, 1 + dx:flat_blocks.shape[2] - 1 + dx]
+            keep[:, 1:-1, 1:-1] &= flat_block[:, 1 + dy:flat_block.shape[1] - 1 + dy, 1 + dx:flat_block.shape[2] - 1 + dx]
+    return keep
+
+
+def flat_ripple(pred, target, window: int, flat: float = 1.0) -> dict:
+    """In `window` x `window` blocks inside flat regions (`flat_blocks`), the std of the source and of the
+    render (a lattice of blobs at the Gaussians' spacing shows as a render std well above the source's):
+    means over those blocks, in 1/255 units, and their count."""
+    pred, target = _numpy(pred), _numpy(target)
+    k = max(2, int(window))
+    src, out = _block_std(target, k), _block_std(np.clip(pred, 0, 1), k)
+    keep = flat_blocks(target, k, flat)
     if not keep.any():
         return {"blocks": 0, "source_std": None, "render_std": None}
     return {"blocks": int(keep.sum()), "source_std": float(src[keep].mean()), "render_std": float(out[keep].mean())}

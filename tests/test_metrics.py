@@ -42,6 +42,15 @@ def test_flat_ripple_sees_a_lattice():
     assert metrics.flat_ripple(flat, flat, window=16)["render_std"] == pytest.approx(0.0, abs=1e-3)
 
 
+def test_flat_blocks_keep_away_from_the_frame_edge_and_from_detail():
+    frame = np.full((1, 96, 96, 3), 0.4, np.float32)
+    frame[:, :, 72:] = 0.9  # an edge inside the fifth column of 16-px blocks
+    keep = metrics.flat_blocks(frame, 16)
+    expected = np.zeros((1, 6, 6), bool)
+    expected[:, 1:5, 1:3] = True  # not the frame's border blocks, not the edge's block nor its neighbours
+    np.testing.assert_array_equal(keep, expected)
+
+
 def test_flat_ripple_means_over_the_videos_blocks():
     from hypergs_blender.commands.evaluate import mean_flat_ripple
     one = {"blocks": 1, "source_std": 0.4, "render_std": 3.0}  # a video with a single flat block

@@ -71,7 +71,12 @@ def flat_blocks(target, window: int, flat: float = 1.0) -> np.ndarray:
     """Which `window` x `window` blocks of the source lie inside flat regions: the block and its 8
     neighbours all have a std < `flat`/255 in every channel (so neither the frame's edge nor an object's
     is near). Bool [T, H // window, W // window]."""
-    flat_block = (_block_std(_numpy(target), max(2, int(window))) < flat).all(-1)
+    return _flat_keep(_block_std(_numpy(target), max(2, int(window))), flat)
+
+
+def _flat_keep(source_std: np.ndarray, flat: float) -> np.ndarray:
+    """flat_blocks from the source's block stds [T, by, bx, 3]."""
+    flat_block = (source_std < flat).all(-1)
     keep = np.zeros_like(flat_block)
     keep[:, 1:-1, 1:-1] = True
     for dy in (-1, 0, 1):
@@ -87,7 +92,7 @@ def flat_ripple(pred, target, window: int, flat: float = 1.0) -> dict:
     pred, target = _numpy(pred), _numpy(target)
     k = max(2, int(window))
     src, out = _block_std(target, k), _block_std(np.clip(pred, 0, 1), k)
-    keep = flat_blocks(target, k, flat)
+    keep = _flat_keep(src, flat)
     if not keep.any():
         return {"blocks": 0, "source_std": None, "render_std": None}
     return {"blocks": int(keep.sum()), "source_std": float(src[keep].mean()), "render_std": float(out[keep].mean())}

@@ -111,13 +111,13 @@ def test_a_file_git_does_not_track_is_found_in_the_zip(tmp_path):
     with zipfile.ZipFile(made, "w") as z:
         for name in ("blender_manifest.toml", "hypergs_blender/encode.py", wheel, "ops/"):
             z.writestr(name, b"")
-    assert build_extension.untracked_files(made) == []
+    assert build_extension.untracked_files([made]) == []
     with zipfile.ZipFile(made, "a") as z:
         z.writestr("onnxruntime_profile__2026-11-27.json", b"{}")
         z.writestr("hypergs_blender/scratch.py", b"")
-    assert build_extension.untracked_files(made) == ["hypergs_blender/scratch.py",
+    assert build_extension.untracked_files([made]) == ["hypergs_blender/scratch.py",
                                                      "onnxruntime_profile__2026-11-27.json"]
-    assert build_extension.untracked_files(made, root=tmp_path) == []  # not a git checkout: nothing to compare
+    assert build_extension.untracked_files([made], root=tmp_path) == []  # not a git checkout: nothing to compare
 
 
 def test_build_is_idempotent(tmp_path):

@@ -97,10 +97,10 @@ def run_ext(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(blender_ext()), *args], capture_output=True, text=True)
 
 
-def untracked_files(zip_path, root=ROOT) -> list[str]:
-    """The zip's files that git does not track and the manifest does not list as a wheel: a stray file in
-    the source tree (a profile, a scratch script, a .blend) that the build would ship to every user.
-    Empty outside a git checkout (a source tarball has nothing to compare with)."""
+def untracked_files(zip_paths, root=ROOT) -> list[str]:
+    """The files in these zips that git does not track and the manifest does not list as a wheel: a stray
+    file in the source tree (a profile, a scratch script, a .blend) that the build would ship to every
+    user. Empty outside a git checkout (a source tarball has nothing to compare with)."""
     try:
         listed = subprocess.run(["git", "-C", str(root), "ls-files", "-z"], capture_output=True)
     except OSError:  # no git on this machine
@@ -109,8 +109,11 @@ def untracked_files(zip_path, root=ROOT) -> list[str]:
         return []
     known = set(listed.stdout.decode().split("\0"))
     known.update(wheel.removeprefix("./") for wheel in manifest().get("wheels", []))
-    with zipfile.ZipFile(zip_path) as archive:
-        return sorted(name for name in archive.namelist() if not name.endswith("/") and name not in known)
+    stray = set()
+    for zip_path in zip_paths:
+        with zipfile.ZipFile(zip_path) as archive:
+            stray.update(name for name in archive.namelist() if not name.endswith("/") and name not in known)
+    return sorted(stray)
 
 
 def validate(zip_path) -> None:
@@ -139,7 +142,7 @@ def build(output_dir=ROOT / "dist", split_platforms: bool = False, quiet: bool =
         raise BuildError(f"blender_ext.py build made no zip in {output_dir}:\n{result.stdout}")
     for z in zips:
         validate(z)
-    stray = sorted({name for z in zips for name in untracked_files(z)})
+    stray = untracked_files(zips)
     if stray:
         for z in zips:
             z.unlink()

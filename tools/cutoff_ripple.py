@@ -60,12 +60,12 @@ def main() -> None:
     raster.SIGMA_CUTOFF = _raster_numba.SIGMA_CUTOFF = args.cutoff
     from hypergs_blender.encode import EncodeSettings, encode_frames
     from hypergs_blender.evaluate import read_eval_frames
-    from hypergs_blender.gaussians import INITIAL_SIGMA, _lattice_gain
+    from hypergs_blender.gaussians import COLOUR_GAIN, INITIAL_SIGMA, _lattice_gain
     from hypergs_blender.render import render_params
     from hypergs_blender.runtime import make_encoder
 
     encoder = make_encoder()
-    gain = _lattice_gain(INITIAL_SIGMA, args.cutoff) / _lattice_gain(INITIAL_SIGMA, 3.0)
+    gain = _lattice_gain(INITIAL_SIGMA, args.cutoff) / COLOUR_GAIN  # COLOUR_GAIN: the product's box
     settings = EncodeSettings.choose(quality=args.quality, refine=0)
     for path in args.videos:
         source = read_eval_frames(path, args.frames, size=None)
@@ -76,7 +76,7 @@ def main() -> None:
         rendered = render_params(params, w, h, w, h)
         target = source / np.float32(255)
         ripple = metrics.flat_ripple(rendered, target, window=round(2 * layout.cell))
-        psnr = -10 * np.log10(((np.clip(rendered, 0, 1) - target) ** 2).mean())
+        psnr = metrics.psnr_from_mse(((np.clip(rendered, 0, 1) - target) ** 2).mean())
         flat = (f"flat ripple {ripple['render_std']:.3f} /255 (source {ripple['source_std']:.3f}, {ripple['blocks']} blocks; "
                 f"periodic at the cell: {periodic_part(rendered, target, layout.cell):.3f} /255)"
                 if ripple["blocks"] else "no flat blocks")

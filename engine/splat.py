@@ -4,7 +4,7 @@ gives the engine a GPU context: the image of the numpy rasterizer (hypergs_blend
 Instancing: Blender's Python GPUBatch has no per-instance vertex buffers, but `draw_instanced` gives the
 vertex shader gl_InstanceID. So one 4-vertex quad is drawn once per Gaussian, and each instance fetches its
 numbers from a float texture that hypergs_blender/splat.py lays out: the quad, in whole pixels, around
-exactly the pixels of the Gaussian's 3-sigma box; its mean; its inverse Cholesky factor; its colour. The
+exactly the pixels of the Gaussian's box (raster.SIGMA_CUTOFF); its mean; its inverse Cholesky factor; its colour. The
 fragment shader evaluates exp(-1/2 |L^-1 d|^2) at the pixel centre, and additive blending sums the
 sRGB-encoded colours into an RGBA32F offscreen. A second pass converts the sum to scene-linear as
 colour.srgb_image_to_linear_rgba does (negative sums clipped to 0, alpha 1) into a second RGBA32F offscreen,

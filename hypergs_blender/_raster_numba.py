@@ -13,7 +13,7 @@ What makes the kernels fast (measured on 2 cores; the slow alternatives were 1.2
   every r or 1/r it meets stays within exp(+-POWER_CUTOFF): no overflow or underflow, and the relative
   error after n steps is ~n^2 1e-16, invisible in float32.
 - Rows are clipped to the pixels where power >= -POWER_CUTOFF (roots of the quadratic), intersected with
-  the 3-sigma box: exp(-20) = 2e-9 is far below what float32 can add to a pixel the Gaussian matters
+  the box: exp(-20) = 2e-9 is far below what float32 can add to a pixel the Gaussian matters
   for, and a rotated needle costs ~1 pixel per row instead of its whole bounding box.
 - "Full" Gaussians, whose whole clipped box lies inside power >= -POWER_CUTOFF (all the usual, roundish
   ones: a concave quadratic is smallest at a corner of the box, so testing the 4 corners is enough),
@@ -39,9 +39,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-SIGMA_CUTOFF = 3.0  # the 3-sigma box (must match raster.SIGMA_CUTOFF)
+SIGMA_CUTOFF = 3.5  # the box's half-width in sigmas: raster.SIGMA_CUTOFF (see there why a copy)
 POWER_CUTOFF = 20.0  # skip pixels with power < -20, i.e. g < 2e-9
-MAX_EXTENT = 1e7  # Gaussians with |mean| or 3-sigma radius beyond 1e7 px are treated as invalid
+MAX_EXTENT = 1e7  # Gaussians with |mean| or box radius beyond 1e7 px are treated as invalid
 BAND_ROWS = 16  # forward work unit: one frame x 16 rows
 
 # Per-Gaussian constants computed by _prepare: [B, N, NCONST] float64.
@@ -401,7 +401,7 @@ def prepare(means, chol, width: int, height: int):
 
 def box_work(boxes) -> np.ndarray:
     """raster.box_work from the kernels' own boxes (prepare): float64 [B], the pixels per frame of
-    the clipped 3-sigma boxes of the valid Gaussians."""
+    the clipped boxes of the valid Gaussians."""
     w = boxes[..., 1].astype(np.int64) - boxes[..., 0] + 1
     h = boxes[..., 3].astype(np.int64) - boxes[..., 2] + 1
     return np.where((w > 0) & (h > 0), w * h, 0).sum(axis=1).astype(np.float64)

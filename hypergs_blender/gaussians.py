@@ -20,24 +20,25 @@ import numpy as np
 
 from . import limits
 from .errors import HyperGSError
+from .raster import SIGMA_CUTOFF
 
 PARAMS = ("x", "y", "scale_x", "scale_y", "rotation", "r", "g", "b")
 NUM_PARAMS = len(PARAMS)
 # A grid of Gaussians with sigma INITIAL_SIGMA x the spacing, each with colour COLOUR_GAIN x c, sums to c
 # on average: the grid floor, where models start. The gain is 1 / the mean over a cell of the kernels'
-# sum, each cut at its 3-sigma box (raster.SIGMA_CUTOFF) as the rasterizer does (about spacing^2 /
-# (2 pi sigma^2), less the 0.5 % the cut-off drops); the box is separable, so the sum is a 1D sum squared.
+# sum, each cut at its box (raster.SIGMA_CUTOFF) as the rasterizer does (about spacing^2 / (2 pi sigma^2),
+# less the 0.1 % the cut-off drops); the box is separable, so the sum is a 1D sum squared.
 INITIAL_SIGMA = 0.6
 
 
-def _lattice_gain(sigma: float, cutoff: float = 3.0) -> float:
+def lattice_gain(sigma: float, cutoff: float = SIGMA_CUTOFF) -> float:
     x = (np.arange(4096) + 0.5) / 4096
     d = x[:, None] - np.arange(-8, 9)[None, :]
     kernel = np.where(np.abs(d) <= cutoff * sigma, np.exp(-0.5 * (d / sigma) ** 2), 0.0)
     return float(1.0 / kernel.sum(1).mean() ** 2)
 
 
-COLOUR_GAIN = _lattice_gain(INITIAL_SIGMA)
+COLOUR_GAIN = lattice_gain(INITIAL_SIGMA)
 MAX_FPS = 10000.0
 MAX_GRID = 1 << 15  # a lattice side: a Gaussian per pixel of the longest side images may have (limits.SIDE)
 

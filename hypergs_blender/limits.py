@@ -64,7 +64,7 @@ SIDE = Limit("SIDE", 1 << 15, "pixels wide or high")  # an image, a canvas, a re
 PIXELS = Limit("PIXELS", 1 << 26, "pixels in one image")  # 8192 x 8192
 BYTES = Limit("BYTES", 1 << 30, "of data decoded at once", True)  # a whole clip, an image, a rendered batch
 METADATA = Limit("METADATA", 1 << 20, "of metadata", True)  # a clip's JSON
-# The sum over a frame's Gaussians of their 3-sigma box area clipped to the frame: the render's cost
+# The sum over a frame's Gaussians of their box area (raster.SIGMA_CUTOFF) clipped to the frame: the render's cost
 # (raster.box_work). 2^30 takes ~4 s with numba on 2 cores, ~40 s on the numpy-only path.
 WORK = Limit("WORK", 1 << 30, "Gaussian-pixels to render in one frame")
 ALL = (GAUSSIANS, FRAMES, SIDE, PIXELS, BYTES, METADATA, WORK)

@@ -33,6 +33,7 @@ from . import optional
 from .encode import BATCH_PIXELS, FloorEncoder, check_cells
 from .errors import HyperGSError
 from .gaussians import lattice_anchors
+from .raster import SIGMA_CUTOFF
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 BUNDLED_NAME = "hypergs"  # the bundled conv network, the default model
@@ -231,6 +232,12 @@ def read_card(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME) -> dict:
     return json.loads(path.read_text())
 
 
+def card_sigma_cutoff(card: dict) -> float:
+    """The box (raster.SIGMA_CUTOFF) a model's colours were trained for: cards record it since the box
+    widened from 3 to 3.5 sigmas; every card without it was trained under 3."""
+    return float(card.get("sigma_cutoff", 3.0))
+
+
 def weights_name(directory, name: str | None = None) -> str:
     """The name of the model to load from a weights folder: `name`, or the bundled name when the folder
     holds that model, or the folder's only model (a <name>.json card)."""
@@ -324,6 +331,10 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         directory, name = directory.parent, directory.stem
     name = weights_name(directory, name)
     card = read_card(directory, name)
+    if card_sigma_cutoff(card) != SIGMA_CUTOFF:  # its colours would come out 0.4 % too bright
+        raise HyperGSError(f"{directory / name}.json: trained for a {card_sigma_cutoff(card):g}-sigma box, and this "
+                           f"HyperGS renders with {SIGMA_CUTOFF:g}: convert the weights with "
+                           f"`hypergs rebox --weights {directory} --name {name}`")
     if backend == "auto":
         backend = "torch" if optional.torch_available() and (directory / f"{name}.safetensors").is_file() else "onnx"
     try:

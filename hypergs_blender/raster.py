@@ -7,8 +7,9 @@ Conventions (shared by every implementation here):
   L = [[l11, 0], [l21, l22]] of its pixel-space covariance Sigma = L L^T, stored as (l11, l21, l22),
   and C colour channels. Then d^T Sigma^-1 d = |L^-1 d|^2, which stays well conditioned for
   needle-thin Gaussians where inverting Sigma would not.
-- Each Gaussian is culled to its 3-sigma box: it touches the pixels whose centres satisfy
-  |x - mx| <= 3 sqrt(Sigma_xx) and |y - my| <= 3 sqrt(Sigma_yy). Outside the box it contributes nothing.
+- Each Gaussian is culled to its box of SIGMA_CUTOFF (3.5) sigmas: it touches the pixels whose centres
+  satisfy |x - mx| <= 3.5 sqrt(Sigma_xx) and |y - my| <= 3.5 sqrt(Sigma_yy). Outside the box it
+  contributes nothing.
 - Shapes: means [B, N, 2], chol [B, N, 3], colors [B, N, C] -> images [B, H, W, C] (channels last,
   float32). B is any number of frames (clips x time flattened); every frame has N Gaussians.
 
@@ -28,7 +29,7 @@ Gaussians are grouped by patch size (rounded up on a ladder of sizes, see _patch
 evaluated in fixed-size chunks: a Python loop over size groups and chunks, none over frames or
 Gaussians, and memory bounded by the chunk size.
 
-Invalid Gaussians (non-finite values, l11 = 0 or l22 = 0, |mean| or 3-sigma radius >= MAX_EXTENT px)
+Invalid Gaussians (non-finite values, l11 = 0 or l22 = 0, |mean| or box radius >= MAX_EXTENT px)
 contribute nothing and get zero gradients in every fast path (the reference would spread NaN over
 their box).
 
@@ -51,13 +52,19 @@ from .errors import Cancelled
 if TYPE_CHECKING:
     import torch
 
-SIGMA_CUTOFF = 3.0
-MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or 3-sigma radius >= 1e7 px as invalid
+# The box's half-width in sigmas (_raster_numba.SIGMA_CUTOFF must be the same number: numba freezes a
+# module's globals into its cached machine code, so that file holds its own copy). At 3 sigma the kernel is
+# still 1.1 % of its peak at the box's edge: in flat regions the similar Gaussians' cut edges lined up into a
+# 1-px column per cell, 41 % of the flat ripple on Kleiber's sky (MODEL_CARD.md, session 16); at 3.5 sigma
+# the edge is 0.2 % and the column is gone, for 1.36x the box area (4 and 5 sigma measured no better).
+SIGMA_CUTOFF = 3.5
+MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or box radius >= 1e7 px as invalid
 
 
 def box_radii(chol):
-    """Half-widths (rx, ry) of each Gaussian's 3-sigma box, from (l11, l21, l22) [..., 3]: numpy or torch,
-    computed in chol's dtype (float32 input gives the float32 radii every float32 path tests against)."""
+    """Half-widths (rx, ry) of each Gaussian's box (SIGMA_CUTOFF sigmas), from (l11, l21, l22) [..., 3]:
+    numpy or torch, computed in chol's dtype (float32 input gives the float32 radii every float32 path tests
+    against)."""
     if isinstance(chol, np.ndarray):
         xp = np
     else:
@@ -68,7 +75,7 @@ def box_radii(chol):
 
 def touching(means: np.ndarray, chol: np.ndarray, width: int, height: int):
     """Which Gaussians (float64 means [M, 2], chol [M, 3]) can touch a pixel of a width x height image, and
-    the pixel bounds (x0, x1, y0, y1) [M] (float, unclipped) of their 3-sigma boxes with one pixel of margin
+    the pixel bounds (x0, x1, y0, y1) [M] (float, unclipped) of their boxes with one pixel of margin
     either side: the exact |dx| <= r test is the caller's. Invalid Gaussians touch nothing (`valid`)."""
     with np.errstate(invalid="ignore", over="ignore"):
         rx, ry = box_radii(chol).T
@@ -82,7 +89,7 @@ def touching(means: np.ndarray, chol: np.ndarray, width: int, height: int):
 
 
 def valid(means: np.ndarray, chol: np.ndarray, rx: np.ndarray, ry: np.ndarray) -> np.ndarray:
-    """The Gaussians every fast path draws: finite, l11 != 0 and l22 != 0, |mean| and 3-sigma radii (rx, ry)
+    """The Gaussians every fast path draws: finite, l11 != 0 and l22 != 0, |mean| and box radii (rx, ry)
     below MAX_EXTENT px (as the numba path). (NaN and inf fail the comparisons with MAX_EXTENT.)"""
     with np.errstate(invalid="ignore"):
         return ((np.abs(means[:, 0]) < MAX_EXTENT) & (np.abs(means[:, 1]) < MAX_EXTENT) & (rx < MAX_EXTENT)
@@ -90,7 +97,7 @@ def valid(means: np.ndarray, chol: np.ndarray, rx: np.ndarray, ry: np.ndarray) -
 
 
 def box_pixels(means: np.ndarray, chol: np.ndarray, columns: tuple[int, int], rows: tuple[int, int]):
-    """The pixels inside each Gaussian's 3-sigma box, exactly as the rasterizers decide them (the float32 test
+    """The pixels inside each Gaussian's box, exactly as the rasterizers decide them (the float32 test
     |k + 0.5 - m| <= r on float32 means [M, 2] and chol [M, 3]), within the columns [c0, c1) and rows [r0, r1)
     of an image: ok [M] (valid and not empty there), and the first and last column and row (x0, x1, y0, y1)
     [M] int32 (meaningful where ok)."""
@@ -122,7 +129,7 @@ def box_pixels(means: np.ndarray, chol: np.ndarray, columns: tuple[int, int], ro
 
 def rasterize_reference(means: "torch.Tensor", chol: "torch.Tensor", colors: "torch.Tensor",
                         width: int, height: int) -> "torch.Tensor":
-    """Dense reference: every Gaussian at every pixel, then the 3-sigma box mask. Differentiable."""
+    """Dense reference: every Gaussian at every pixel, then the box mask. Differentiable."""
     import torch
 
     dtype = means.dtype
@@ -186,7 +193,7 @@ LADDER_FINE = np.array(sorted({int(math.ceil(2 ** (k / 4) - 1e-9)) for k in rang
 
 def _clipped_boxes(means: np.ndarray, chol: np.ndarray, width: int, height: int):
     """For flattened Gaussians means [M, 2], chol [M, 3] (float64): which are drawn (valid and on
-    screen), and their pixel boxes x0, x1, y0, y1 (int64 [M]: the 3-sigma box and one pixel of margin
+    screen), and their pixel boxes x0, x1, y0, y1 (int64 [M]: the box and one pixel of margin
     either side, clipped to the image; 0 for the others)."""
     ok, (fx0, fx1, fy0, fy1) = touching(means, chol, width, height)  # the exact test happens on the patch
     x0 = np.clip(np.where(ok, fx0, 0), 0, width - 1).astype(np.int64)

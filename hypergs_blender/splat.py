@@ -1,10 +1,10 @@
 """The Gaussians as the GPU splat shader (engine/splat.py) reads them: one quad per Gaussian over exactly the
-pixels of its 3-sigma box, its numbers in a float texture. numpy only (no bpy, no GPU), so the quads and the
-numbers are tested without Blender; the shader itself is tested against `render.render_params`.
+pixels of its box (raster.SIGMA_CUTOFF), its numbers in a float texture. numpy only (no bpy, no GPU), so the
+quads and the numbers are tested without Blender; the shader itself is tested against `render.render_params`.
 
 Per Gaussian, TEXELS RGBA float texels side by side, in the rasterizer's pixel units (raster.py: y down,
 pixel (row i, column j) has its centre at (j + 0.5, i + 0.5)):
-  (x0, y0, x1, y1)  the quad: pixel edges around the pixels whose centres are in the 3-sigma box, as
+  (x0, y0, x1, y1)  the quad: pixel edges around the pixels whose centres are in the box, as
                     raster.box_pixels decides them (the same float32 test as the numpy rasterizer)
   (mx, my, a, b)    the mean, and with c below s L^-1 = [[a, 0], [b, c]], where L is the Cholesky factor
                     of the stretched covariance (gaussians.render_inputs) and s = EXP2_SCALE, so that

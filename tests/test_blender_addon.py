@@ -19,6 +19,7 @@ from blender_headless import SAMPLE, install_extension, read_png, render_png
 from conftest import make_pan_clip
 
 from hypergs_blender.encode import QUALITY, FloorEncoder, plan_layout
+from hypergs_blender.raster import SIGMA_CUTOFF
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP_NAME = "pan"  # the session's movie: a 432 x 240, 70-frame pan that conftest.make_pan_clip writes
@@ -452,8 +453,8 @@ def run_session(zip_path, work, out_path):
         change = np.abs(after - before).max(-1)
         old = ((params[k, 0] + 1) * W / 2, (params[k, 1] + 1) * H / 2)
         new = ((edited[k, 0] + 1) * W / 2, (edited[k, 1] + 1) * H / 2)
-        # the Gaussian's 3-sigma box (raster.box_radii: axis-aligned) reaches 3 hypot(sx, sy) at its corners
-        reach = 3 * np.hypot(params[k, 2], params[k, 3]) * W / 432 + 2
+        # the Gaussian's box (raster.box_radii: axis-aligned) reaches SIGMA_CUTOFF hypot(sx, sy) at its corners
+        reach = SIGMA_CUTOFF * np.hypot(params[k, 2], params[k, 3]) * W / 432 + 2
         yy, xx = np.mgrid[0:H, 0:W] + 0.5
         near_old = np.hypot(xx - old[0], yy - old[1]) < 2
         near_new = np.hypot(xx - new[0], yy - new[1]) < 2

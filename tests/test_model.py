@@ -290,3 +290,43 @@ def test_onnx_session_uses_the_providers_and_threads_asked_for():
     assert encoder.provider == expected == encoder.session.get_providers()[0]
     assert encoder.session.get_session_options().intra_op_num_threads == 1
     assert resolve_encoder("network", "onnx").provider == "CPUExecutionProvider"  # the default
+
+
+def test_rebox_scales_the_colours_to_the_new_box_and_resolve_refuses_weights_for_another(tmp_path):
+    """Weights whose card records no box were trained under 3 sigma. The runtime refuses them (their colours
+    would come out 0.4 % too bright) and names `hypergs rebox`; rebox makes the model give ratio x the
+    colours it gave under the old box's gain, ratio = lattice_gain(new) / lattice_gain(old), with its
+    means and shapes unchanged, re-exports the ONNX model (which bakes COLOUR_GAIN in) and records the box."""
+    import json
+
+    import torch.nn.functional as F
+
+    from hypergs_blender.errors import HyperGSError
+    from hypergs_blender.gaussians import COLOUR_GAIN, INITIAL_SIGMA, lattice_gain
+    from hypergs_blender.network import load_model, resolve_encoder
+    from hypergs_blender.raster import SIGMA_CUTOFF
+    from hypergs_blender.training.export import rebox, save_weights
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,)))
+    save_weights(model, tmp_path, "old")
+    card = json.loads((tmp_path / "old.json").read_text())
+    assert card["sigma_cutoff"] == SIGMA_CUTOFF != 3.0
+    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in card.items() if k != "sigma_cutoff"}))
+    with pytest.raises(HyperGSError, match=r"trained for a 3-sigma box.*hypergs rebox --weights"):
+        resolve_encoder("network", "torch", weights=tmp_path / "old.json")
+
+    assert rebox(tmp_path, "old") == 3.0
+    assert rebox(tmp_path, "old") is None  # already converted: nothing to do
+    frames = torch.rand(2, 16, 24, 3)
+    with torch.no_grad():
+        before = model(frames)
+        after = load_model(tmp_path, "old")(frames)
+    cell_mean = F.avg_pool2d(frames.permute(0, 3, 1, 2), 4).flatten(2).transpose(1, 2)
+    under_old_box = before[..., 5:8] + (lattice_gain(INITIAL_SIGMA, 3.0) - COLOUR_GAIN) * cell_mean
+    ratio = COLOUR_GAIN / lattice_gain(INITIAL_SIGMA, 3.0)
+    assert 0.99 < ratio < 0.999
+    torch.testing.assert_close(after[..., 5:8], ratio * under_old_box, atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(after[..., :5], before[..., :5], atol=0, rtol=0)
+    card = json.loads((tmp_path / "old.json").read_text())
+    assert card["sigma_cutoff"] == SIGMA_CUTOFF and card["info"]["reboxed_from"] == 3.0
+    onnx_params = resolve_encoder("network", "onnx", weights=tmp_path / "old.json", threads=1).predict(frames.numpy())
+    np.testing.assert_allclose(onnx_params, after.numpy(), atol=1e-5, rtol=0)

@@ -1,12 +1,12 @@
-"""What the rasterizer's 3-sigma box costs in flat regions: encode videos at a Quality preset with the
+"""What the rasterizer's box costs in flat regions: encode videos at a Quality preset with the
 bundled network, render them with the Gaussians cut at another box (`--cutoff`, in sigmas), and print
 PSNR and the flat ripple (`metrics.flat_ripple`, as `hypergs eval` reports it) per video.
 
-    python tools/cutoff_ripple.py runs/heldout720/*.mp4 --cutoff 3     # the product's box
+    python tools/cutoff_ripple.py runs/heldout720/*.mp4               # the product's box (raster.SIGMA_CUTOFF)
     python tools/cutoff_ripple.py runs/heldout720/*.mp4 --cutoff 4
 
-The colours are scaled by the ratio of the Gaussian grid's gains at the two boxes (`gaussians._lattice_gain`),
-since a wider box adds the tails' mass (about 0.5 % at 3 sigma) that the network learned to do without.
+The colours are scaled by the ratio of the Gaussian grid's gains at the two boxes (`gaussians.lattice_gain`),
+since a wider box adds the tails' mass that the network learned to do without.
 Each run compiles the numba kernels with its box in a fresh cache: numba bakes module constants in.
 """
 from __future__ import annotations
@@ -50,22 +50,26 @@ def periodic_part(rendered, target, cell: float, bins: int = 6) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("videos", nargs="+")
-    parser.add_argument("--cutoff", type=float, default=3.0, help="the box's half-width in sigmas (product: 3)")
+    parser.add_argument("--cutoff", type=float, default=None,
+                        help="the box's half-width in sigmas (default: the product's)")
     parser.add_argument("--quality", default="standard")
     parser.add_argument("--frames", type=int, default=2, help="whole frames spread over each video")
     args = parser.parse_args()
 
     import numpy as np
     from hypergs_blender import _raster_numba, metrics, raster
-    raster.SIGMA_CUTOFF = _raster_numba.SIGMA_CUTOFF = args.cutoff
     from hypergs_blender.encode import EncodeSettings, encode_frames
     from hypergs_blender.evaluate import read_eval_frames
-    from hypergs_blender.gaussians import COLOUR_GAIN, INITIAL_SIGMA, _lattice_gain
+    from hypergs_blender.gaussians import COLOUR_GAIN, INITIAL_SIGMA, lattice_gain
     from hypergs_blender.render import render_params
     from hypergs_blender.runtime import make_encoder
 
     encoder = make_encoder()
-    gain = _lattice_gain(INITIAL_SIGMA, args.cutoff) / COLOUR_GAIN  # COLOUR_GAIN: the product's box
+    # After every import (COLOUR_GAIN and the network's colours stay the product box's), before the first
+    # render (numba compiles the kernels then, with the constant it finds)
+    args.cutoff = args.cutoff or raster.SIGMA_CUTOFF
+    raster.SIGMA_CUTOFF = _raster_numba.SIGMA_CUTOFF = args.cutoff
+    gain = lattice_gain(INITIAL_SIGMA, args.cutoff) / COLOUR_GAIN
     settings = EncodeSettings.choose(quality=args.quality, refine=0)
     for path in args.videos:
         source = read_eval_frames(path, args.frames, size=None)

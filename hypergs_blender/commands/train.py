@@ -1,5 +1,6 @@
 """`hypergs train` (resumable training, one process or torchrun), `hypergs export` (checkpoint ->
-bundled weights) and `hypergs export-onnx` (weights -> ONNX model)."""
+bundled weights), `hypergs export-onnx` (weights -> ONNX model) and `hypergs rebox` (weights trained for
+another render box -> this one's)."""
 from __future__ import annotations
 
 import argparse
@@ -107,6 +108,11 @@ def add_commands(subparsers) -> None:
     p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
     p.set_defaults(func=_export_onnx_command)
 
+    p = subparsers.add_parser("rebox", help="weights trained for another render box -> this HyperGS's box, in place")
+    p.add_argument("--weights", default=str(WEIGHTS_DIR), type=options.input_folder)
+    p.add_argument("--name", default=BUNDLED_NAME, type=options.name)
+    p.set_defaults(func=_rebox_command)
+
 
 def _train_command(args) -> None:
     from dataclasses import fields
@@ -135,3 +141,12 @@ def _export_onnx_command(args) -> None:
     path = Path(args.weights) / f"{args.name}.onnx"
     export_onnx(load_model(args.weights, args.name), path)
     print(f"wrote {path}")
+
+
+def _rebox_command(args) -> None:
+    from ..raster import SIGMA_CUTOFF
+    from ..training.export import rebox
+    old = rebox(args.weights, args.name)
+    where = Path(args.weights) / args.name
+    print(f"{where}: already for the {SIGMA_CUTOFF:g}-sigma box" if old is None
+          else f"{where}: colours converted from the {old:g}-sigma box to {SIGMA_CUTOFF:g} (safetensors, card, ONNX)")

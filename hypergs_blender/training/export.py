@@ -10,7 +10,8 @@ from pathlib import Path
 
 from ..errors import HyperGSError, reason
 from ..io.files import AtomicOutput, write_bytes
-from ..network import DEFAULT_NAMES, transformer_geometry
+from ..network import DEFAULT_NAMES, card_sigma_cutoff, load_model, read_card, transformer_geometry
+from ..raster import SIGMA_CUTOFF
 
 # Opset 20 has GELU as one op (Gelu): at 18 the exporter spells it out (Erf, Mul, Add), which onnxruntime
 # does not fuse back, and around each of those ops its NCHWc conv layout is reordered; the one op cuts a
@@ -26,7 +27,8 @@ def card_of(model, info: dict | None = None) -> dict:
         geometry = transformer_geometry(cfg, gaussian_range(trained) if trained else None)
     else:
         geometry = dict(stride=cfg.stride, multiple=cfg.multiple, reach=cfg.reach)
-    return dict(arch=cfg.arch, config=model_config(model), geometry=geometry, info=info or {})
+    return dict(arch=cfg.arch, config=model_config(model), geometry=geometry, sigma_cutoff=SIGMA_CUTOFF,
+                info=info or {})
 
 
 def gaussian_range(spec: str) -> tuple[int, int]:
@@ -70,6 +72,33 @@ def export_onnx(model, path) -> None:
                                 opset_version=ONNX_OPSET, dynamo=True, external_data=False, dynamic_shapes=dynamic)
     with AtomicOutput(path) as temp:
         program.save(str(temp))
+
+
+def rebox(directory, name: str) -> float | None:
+    """Convert the weights <directory>/<name> trained for another box (network.card_sigma_cutoff) to this
+    HyperGS's raster.SIGMA_CUTOFF, in place (safetensors, card, ONNX). Their colours c were fitted to that
+    box; under this one, c x gain ratio (gaussians.lattice_gain) draws the same image up to the tails the
+    boxes cut. Both designs compute c = COLOUR_GAIN x the cell's mean + the head's output, and COLOUR_GAIN
+    follows the box, so scaling the head's colour rows by the ratio does it. Returns the old box, or None
+    where the weights were already for this one."""
+    import torch
+
+    from ..gaussians import INITIAL_SIGMA, lattice_gain
+    card = read_card(directory, name)
+    old = card_sigma_cutoff(card)
+    if old == SIGMA_CUTOFF:
+        return None
+    model = load_model(directory, name)
+    if getattr(model.cfg, "parametrization", "local") != "local":
+        raise HyperGSError(f"{name}: the {model.cfg.parametrization!r} parametrization's colours (a sigmoid) "
+                           "cannot be rescaled; retrain it")
+    ratio = lattice_gain(INITIAL_SIGMA) / lattice_gain(INITIAL_SIGMA, old)
+    with torch.no_grad():
+        model.head.weight[5:8] *= ratio
+        model.head.bias[5:8] *= ratio
+    save_weights(model, directory, name, dict(card.get("info", {}), reboxed_from=old))
+    export_onnx(model, Path(directory) / f"{name}.onnx")
+    return old
 
 
 def load_checkpoint(path) -> dict:

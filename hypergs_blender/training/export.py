@@ -96,8 +96,11 @@ def rebox(directory, name: str) -> float | None:
     with torch.no_grad():
         model.head.weight[5:8] *= ratio
         model.head.bias[5:8] *= ratio
-    save_weights(model, directory, name, dict(card.get("info", {}), reboxed_from=old))
+    # The slow ONNX export first, the safetensors and the card (the box it records) last: stopped during the
+    # export, the card and safetensors are the old ones, so the runtime refuses them and a second rebox
+    # starts again from them
     export_onnx(model, Path(directory) / f"{name}.onnx")
+    save_weights(model, directory, name, dict(card.get("info", {}), reboxed_from=old))
     return old
 
 

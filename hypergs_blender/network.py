@@ -331,8 +331,9 @@ def resolve_encoder(kind: str = "network", backend: str = "auto", weights=None, 
         directory, name = directory.parent, directory.stem
     name = weights_name(directory, name)
     card = read_card(directory, name)
-    if card_sigma_cutoff(card) != SIGMA_CUTOFF:  # its colours would come out 0.4 % too bright
-        raise HyperGSError(f"{directory / name}.json: trained for a {card_sigma_cutoff(card):g}-sigma box, and this "
+    trained_box = card_sigma_cutoff(card)
+    if trained_box != SIGMA_CUTOFF:  # its colours would come out 0.4 % too bright
+        raise HyperGSError(f"{directory / name}.json: trained for a {trained_box:g}-sigma box, and this "
                            f"HyperGS renders with {SIGMA_CUTOFF:g}: convert the weights with "
                            f"`hypergs rebox --weights {directory} --name {name}`")
     if backend == "auto":

@@ -38,8 +38,9 @@ def main() -> None:
         t, h, w = source.shape[:3]
         layout = settings.layout(w, h, encoder)
         rendered, _, _ = encode_render(source, encoder, layout)
+        rendered = np.clip(rendered, 0, 1)
         target = source / np.float32(255)
-        error = (np.clip(rendered, 0, 1) - target) * 255
+        error = (rendered - target) * 255
         py = np.floor((np.arange(h) + 0.5) / layout.cell % 1 * args.bins).astype(int)
         px = np.floor((np.arange(w) + 0.5) / layout.cell % 1 * args.bins).astype(int)
         phase = (py[:, None] * args.bins + px[None, :]).ravel()
@@ -48,7 +49,7 @@ def main() -> None:
         folded = np.array([[np.bincount(phase, flat[f, :, c], args.bins ** 2) / counts for c in range(3)]
                            for f in range(t)])  # [T, 3, bins^2]
         periodic = folded - folded.mean(-1, keepdims=True)
-        psnr = float(np.mean(metrics.psnr(np.clip(rendered, 0, 1), target)))
+        psnr = float(np.mean(metrics.psnr(rendered, target)))
         print(f"{os.path.basename(path)}: {layout.count} Gaussians (cells of {layout.cell:.2f} px), PSNR {psnr:.3f} dB, "
               f"error rms {np.sqrt((error ** 2).mean()):.3f} /255, periodic part {np.sqrt((periodic ** 2).mean()):.3f}, "
               f"mean RGB {np.array2string(error.mean((0, 1, 2)), precision=3)}", flush=True)

@@ -98,6 +98,22 @@ def flat_ripple(pred, target, window: int, flat: float = 1.0) -> dict:
     return {"blocks": int(keep.sum()), "source_std": float(src[keep].mean()), "render_std": float(out[keep].mean())}
 
 
+def cell_phase_means(values, rows, cols, cell: float, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fold per-pixel values by where each pixel lies in its cell: pixel (row, col), whose centre is at
+    (row + 0.5, col + 0.5), has phase py * bins + px, py and px its centre's bin among `bins` equal parts
+    of the cell side (`cell` px) along each axis. values [P, C], rows and cols [P] (any shapes that
+    broadcast to P) -> (the phase of each pixel [P], the mean value at each phase [bins * bins, C], 0 at a
+    phase no pixel has). What repeats at the cell period in an error: the tools that look for a lattice."""
+    rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
+    phase_y = np.floor(((rows.ravel() + 0.5) / cell) % 1 * bins).astype(int)
+    phase_x = np.floor(((cols.ravel() + 0.5) / cell) % 1 * bins).astype(int)
+    phase = phase_y * bins + phase_x
+    values = np.asarray(values).reshape(len(phase), -1)
+    counts = np.maximum(np.bincount(phase, minlength=bins * bins), 1)
+    means = np.stack([np.bincount(phase, values[:, c], bins * bins) / counts for c in range(values.shape[1])], 1)
+    return phase, means
+
+
 def edge_bias(pred, target, band: int = 6) -> float:
     """Mean signed error (render - source) in the `band`-pixel frame border minus that of the interior,
     in 1/255 units: negative when the frame's edges come back darker."""

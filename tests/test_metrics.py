@@ -159,3 +159,21 @@ def test_eval_command_reports_the_temporal_means(moving_video, capsys):
     mean = report["mean"]["temporal"]
     assert mean["delta_psnr"] == pytest.approx(video["delta_psnr"])
     assert mean["still_change"] == pytest.approx(video["still_change"])
+
+
+def test_cell_phase_means_match_a_loop_over_pixels():
+    rng = np.random.default_rng(3)
+    h, w, cell, bins = 13, 17, 4.3, 3  # no pixel centre on a bin's edge
+    values = rng.normal(size=(h, w, 2))
+    phase, means = metrics.cell_phase_means(values.reshape(-1, 2), np.arange(h)[:, None], np.arange(w)[None, :],
+                                            cell, bins)
+    sums, counts, expected_phase = np.zeros((bins * bins, 2)), np.zeros(bins * bins), []
+    for row in range(h):
+        for col in range(w):
+            k = int((row + 0.5) % cell / cell * bins) * bins + int((col + 0.5) % cell / cell * bins)  # centre's bin
+            expected_phase.append(k)
+            sums[k] += values[row, col]
+            counts[k] += 1
+    np.testing.assert_array_equal(phase, expected_phase)
+    np.testing.assert_allclose(means, sums / np.maximum(counts, 1)[:, None])
+    assert counts.min() > 0  # every phase seen: the means are not the empty-phase zeros

@@ -41,14 +41,10 @@ def main() -> None:
         rendered = np.clip(rendered, 0, 1)
         target = source / np.float32(255)
         error = (rendered - target) * 255
-        py = np.floor((np.arange(h) + 0.5) / layout.cell % 1 * args.bins).astype(int)
-        px = np.floor((np.arange(w) + 0.5) / layout.cell % 1 * args.bins).astype(int)
-        phase = (py[:, None] * args.bins + px[None, :]).ravel()
-        counts = np.bincount(phase, minlength=args.bins ** 2)
-        flat = error.reshape(t, h * w, 3)
-        folded = np.array([[np.bincount(phase, flat[f, :, c], args.bins ** 2) / counts for c in range(3)]
-                           for f in range(t)])  # [T, 3, bins^2]
-        periodic = folded - folded.mean(-1, keepdims=True)
+        rows, cols = np.arange(h)[:, None], np.arange(w)[None, :]
+        folded = np.stack([metrics.cell_phase_means(frame.reshape(-1, 3), rows, cols, layout.cell, args.bins)[1]
+                           for frame in error])  # [T, bins^2, 3]
+        periodic = folded - folded.mean(1, keepdims=True)
         psnr = float(np.mean(metrics.psnr(rendered, target)))
         print(f"{os.path.basename(path)}: {layout.count} Gaussians (cells of {layout.cell:.2f} px), PSNR {psnr:.3f} dB, "
               f"error rms {np.sqrt((error ** 2).mean()):.3f} /255, periodic part {np.sqrt((periodic ** 2).mean()):.3f}, "

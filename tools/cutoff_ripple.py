@@ -38,12 +38,7 @@ def periodic_part(rendered, target, cell: float, bins: int = 6) -> float:
     ys, xs = np.nonzero(keep)[1:]
     rows = ys[:, None] * k + np.arange(k)[None, :]  # [blocks, k] pixel rows
     cols = xs[:, None] * k + np.arange(k)[None, :]
-    phase_y = np.floor(((rows + 0.5) / cell) % 1 * bins).astype(int)[:, :, None]
-    phase_x = np.floor(((cols + 0.5) / cell) % 1 * bins).astype(int)[:, None, :]
-    phase = np.broadcast_to(phase_y * bins + phase_x, residual.shape[:3]).ravel()
-    values = residual.reshape(-1, 3)
-    counts = np.maximum(np.bincount(phase, minlength=bins * bins), 1)
-    folded = np.stack([np.bincount(phase, values[:, c], bins * bins) / counts for c in range(3)], 1)
+    phase, folded = metrics.cell_phase_means(residual.reshape(-1, 3), rows[:, :, None], cols[:, None, :], cell, bins)
     return float(folded[phase].std())
 
 

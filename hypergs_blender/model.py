@@ -17,6 +17,11 @@ and more Gaussians always see more of the frame. Per frame:
       -> mean  = cell centre + tanh(h) x offset_range cells    (may leave its cell: no seams)
          scale = INITIAL_SIGMA x stride x exp(scale_range tanh(h / scale_range))   (bounded)
          rotation = pi h, colour = COLOUR_GAIN x the cell's mean colour + h         (signed)
+      -> with an error pass (`error_width` > 0): those Gaussians rendered at error_samples^2 points per
+         cell (render.local_render: each point sums the Gaussians of the cells within `error_reach`),
+         the input minus that render, and a second small conv net from [cell features, head outputs,
+         error] to a correction of the head outputs (its head starts at zero): what refinement does with
+         the render's gradient, learned, in one step (model card: "the error pass")
 The head starts at zero, i.e. at the Gaussian grid floor, and training learns corrections. The
 network is translation-equivariant with a finite receptive field (`ConvConfig.reach`): a frame
 encoded in tiles that overlap by at least that much gives exactly the Gaussians of one pass.
@@ -60,8 +65,10 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, grid_anchors
+from .render import local_render
 
 SCALE_EPS = 1e-2
+ERROR_GAIN = 8.0  # the error pass's input: the render's error (a few /255) times this, the size of its features
 
 
 @dataclass
@@ -99,9 +106,15 @@ class ConvConfig:
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
+    error_width: int = 0  # channels of the error pass (0: none), a second pass reading the first's render error
+    error_blocks: int = 1  # its residual blocks
+    error_samples: int = 4  # its render's samples per cell side (stride: one per input pixel)
+    error_reach: int = 1  # cells around a sample's own whose Gaussians its render sums
 
     def __post_init__(self):
         self.blocks = tuple(int(b) for b in self.blocks)
+        if self.error_width and self.stride % self.error_samples:
+            raise ValueError(f"error_samples ({self.error_samples}) must divide the stride ({self.stride})")
 
     @property
     def multiple(self) -> int:
@@ -120,6 +133,8 @@ class ConvConfig:
             radius += (2 * n + 1) * cell  # n blocks of two 3x3 convs, the conv down to (or up from) here
             if level < len(self.blocks) - 1:
                 radius += 2 * cell  # the block on the way back up
+        if self.error_width:  # the error reads the Gaussians error_reach cells away; then its convs
+            radius += (self.error_reach + 1 + 2 * self.error_blocks) * self.stride
         return -(-radius // self.multiple) * self.multiple
 
 
@@ -351,6 +366,7 @@ class ConvGS(nn.Module):
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)  # start at the grid floor
         nn.init.zeros_(self.head.bias)
+        self.error_pass = ErrorPass(cfg) if cfg.error_width else None
 
     def cell_features(self, x: torch.Tensor) -> torch.Tensor:
         """Input [B, 3, H, W] (normalised) -> the stem's features [B, width, H / stride, W / stride]."""
@@ -373,12 +389,18 @@ class ConvGS(nn.Module):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         """frames [B, H, W, 3] in [0, 1], H and W multiples of cfg.multiple -> params [B, N, 8] on the
         W x H canvas (N = (H / stride) x (W / stride), row-major from the top-left cell)."""
-        cfg = self.cfg
-        s = cfg.stride
         x = frames.permute(0, 3, 1, 2)
-        # [B, 8, rows, cols]; the geometry below in float32 whatever precision the convolutions ran in:
+        features = self.features((x - 0.5) * 2)
+        # [B, 8, rows, cols]; the geometry in float32 whatever precision the convolutions ran in:
         # a half-precision cell grid puts the means of a 128-px frame on a 0.5-px lattice (-0.9 dB)
-        h = self.head(self.features((x - 0.5) * 2)).float()
+        h = self.head(features).float()
+        if self.error_pass is not None:
+            h = self.error_pass(features, h, self.render_error(h, x))
+        return self.geometry(h, x)
+
+    def geometry(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Head outputs h [B, 8, rows, cols] (float32) and the input x [B, 3, H, W] -> params [B, N, 8]."""
+        cfg, s = self.cfg, self.cfg.stride
         height, width = x.shape[-2:]
         rows, cols = h.shape[-2:]
         ys = (torch.arange(rows, dtype=h.dtype, device=h.device) + 0.5) * s
@@ -392,6 +414,37 @@ class ConvGS(nn.Module):
         colour = COLOUR_GAIN * F.avg_pool2d(x, s) + h[:, 5:8]
         params = torch.cat([mean_x[:, None], mean_y[:, None], scale, rotation, colour], 1)
         return params.flatten(2).transpose(1, 2)
+
+    def render_error(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The input minus the render of the Gaussians of head outputs h, at error_samples^2 points per
+        cell, as [B, 3 error_samples^2, rows, cols] (times ERROR_GAIN). An observation the error pass reads
+        (as refinement reads its gradient), not a path to train the first pass through: detached."""
+        cfg = self.cfg
+        n = cfg.error_samples
+        rows, cols = h.shape[-2:]
+        with torch.no_grad(), torch.autocast(x.device.type, enabled=False):
+            rendered = local_render(self.geometry(h, x), rows, cols, cfg.stride, n, cfg.error_reach)
+            target = F.avg_pool2d(x.float(), cfg.stride // n) if n < cfg.stride else x.float()
+            return F.pixel_unshuffle((target - rendered) * ERROR_GAIN, n)
+
+
+class ErrorPass(nn.Module):
+    """The second pass (ConvConfig.error_width > 0): from the first pass's cell features, its head outputs
+    and its render's error at each cell's samples to a correction of the head outputs. A 3x3 conv, residual
+    blocks, and a 1x1 head that starts at zero, so a warm start from a one-pass network starts as it."""
+
+    def __init__(self, cfg: ConvConfig):
+        super().__init__()
+        c = cfg.error_width
+        self.inputs = nn.Conv2d(cfg.width + 8 + 3 * cfg.error_samples ** 2, c, 3, padding=1)
+        self.blocks = nn.Sequential(*(ResBlock(c) for _ in range(cfg.error_blocks)))
+        self.head = nn.Conv2d(c, 8, 1)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, features: torch.Tensor, h: torch.Tensor, error: torch.Tensor) -> torch.Tensor:
+        z = torch.cat([features, h.to(features.dtype), error.to(features.dtype)], 1)
+        return h + self.head(self.blocks(self.inputs(z))).float()
 
 
 def build_model(config: dict) -> nn.Module:

@@ -8,9 +8,10 @@ import torch
 
 from hypergs_blender.training.optim import Lamb
 from hypergs_blender.encode import FloorEncoder
-from hypergs_blender.model import (PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs, apply_rope,
+from hypergs_blender.model import (ERROR_GAIN, PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs, apply_rope,
                                    build_model, count_parameters, model_config, rope_angles)
 from hypergs_blender.network import torch_encoder
+from hypergs_blender.render import local_render, render_torch
 from hypergs_blender.training.regularizers import AdaptiveRegularizer, effective_rank
 
 TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
@@ -126,9 +127,9 @@ def test_lamb_step_matches_hand_computation():
     torch.testing.assert_close(w.detach(), expected, atol=1e-5, rtol=0)
 
 
-def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
-    """A conv network with every block, every way back up from a coarser level and the head away from
-    their zero initialisation."""
+def random_conv(cfg: ConvConfig, seed: int = 0, error_strength: float = 0.05) -> ConvGS:
+    """A conv network with every block, every way back up from a coarser level and the heads away from
+    their zero initialisation (the error pass's by error_strength)."""
     torch.manual_seed(seed)
     model = ConvGS(cfg)
     with torch.no_grad():
@@ -137,6 +138,10 @@ def random_conv(cfg: ConvConfig, seed: int = 0) -> ConvGS:
             up.weight.normal_(0, 0.2)
         for block in [b for level in model.encoder for b in level] + list(model.decoder):
             block.b.weight.normal_(0, 0.05)
+        if model.error_pass is not None:
+            model.error_pass.head.weight.normal_(0, error_strength)
+            for block in model.error_pass.blocks:
+                block.b.weight.normal_(0, error_strength)
     return model.eval()
 
 
@@ -193,12 +198,12 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level", [((2,), "pixel"), ((1, 1, 1), "pixel"), ((2,), "cell"),
-                                              ((1, 1, 1), "cell")])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level):
+@pytest.mark.parametrize("blocks,stem_level,error_width", [((2,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((2,), "cell", 0),
+                                                          ((1, 1, 1), "cell", 0), ((2,), "cell", 8)])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
-    model = random_conv(cfg)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width, error_reach=2)
+    model = random_conv(cfg, error_strength=0.5)  # the error's far reach is faint: make it show
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
     cell = size // cfg.stride // 2  # a cell in the middle
@@ -214,11 +219,63 @@ def test_conv_reach_bounds_the_receptive_field(blocks, stem_level):
     assert (out_near - base).abs().max() > 1e-6
 
 
-@pytest.mark.parametrize("blocks,stem_level", [((4,), "pixel"), ((1, 1, 1), "pixel"), ((4,), "cell")])
-def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
+def test_a_new_error_pass_starts_as_the_network_it_was_added_to():
+    """The error pass's head starts at zero: a two-pass network warm-started from a one-pass one gives its
+    Gaussians; once its head moves, they change, and only where the error pass reads."""
+    one = random_conv(ConvConfig(width=8, stem=4, blocks=(1,)))
+    two = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,), error_width=8)).eval()
+    assert set(two.load_state_dict(one.state_dict(), strict=False).missing_keys) == {
+        k for k in two.state_dict() if k.startswith("error_pass.")}
+    x = torch.rand(2, 32, 48, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(two(x), one(x), rtol=0, atol=0)
+        two.error_pass.head.bias[0] = 0.5  # every mean half a tanh to the right
+        moved = two(x) - one(x)
+    assert float(moved[..., 0].abs().min()) > 0 and float(moved[..., 1:].abs().max()) == 0
+
+
+def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
+    """The error pass's render: per-cell Gaussians (moved up to a quarter cell, 0.2 to 0.5 cells wide: within
+    reach 2 to 4.7 sigma) at samples^2 points per cell, against the rasterizer (which cuts them at 3.5
+    sigma); with reach 0 it misses the light of the neighbours' Gaussians."""
+    rows, cols, stride = 6, 8, 4
+    rng = torch.Generator().manual_seed(0)
+    cy, cx = torch.meshgrid(torch.arange(rows) + 0.5, torch.arange(cols) + 0.5, indexing="ij")
+    centres = torch.stack([cx / cols, cy / rows], -1).reshape(1, -1, 2) * 2 - 1
+    n = rows * cols
+    params = torch.cat([centres + (torch.rand(1, n, 2, generator=rng) - 0.5) * (1 / torch.tensor([cols, rows])),
+                        stride * (0.2 + 0.3 * torch.rand(1, n, 2, generator=rng)),
+                        torch.rand(1, n, 1, generator=rng) * math.pi, torch.rand(1, n, 3, generator=rng)], -1)
+    for samples in (4, 2):
+        exact = render_torch(params, cols * stride, rows * stride, cols * samples, rows * samples).permute(0, 3, 1, 2)
+        local = local_render(params, rows, cols, stride, samples, reach=2)
+        assert local.shape == (1, 3, rows * samples, cols * samples)
+        torch.testing.assert_close(local, exact, atol=3e-3, rtol=0)  # the rasterizer's 3.5-sigma box
+        alone = local_render(params, rows, cols, stride, samples, reach=0)
+        assert float((alone - exact).abs().max()) > 0.1
+
+
+def test_the_error_pass_reads_the_error_of_the_first_pass_render():
+    """What the error pass reads: the input minus the render of the first pass's Gaussians, per sample."""
+    cfg = ConvConfig(width=8, stem=4, blocks=(1,), error_width=8, error_samples=2, error_reach=2)
+    model = random_conv(cfg)
+    frames = torch.rand(1, 32, 48, 3)
+    x = frames.permute(0, 3, 1, 2)
+    with torch.no_grad():
+        h = model.head(model.features((x - 0.5) * 2))
+        error = model.render_error(h, x)  # [1, 3 samples^2, rows, cols]
+        rendered = render_torch(model.geometry(h, x), 48, 32, 24, 16)  # one sample per 2 x 2 pixels
+    expected = (torch.nn.functional.avg_pool2d(x, 2) - rendered.permute(0, 3, 1, 2)) * ERROR_GAIN
+    torch.testing.assert_close(torch.nn.functional.pixel_shuffle(error, 2), expected, atol=0.02, rtol=0)
+    assert float(expected.abs().mean()) > 0.5  # a real error, well above the renders' difference
+
+
+@pytest.mark.parametrize("blocks,stem_level,error_width", [((4,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((4,), "cell", 0),
+                                                          ((2,), "cell", 8)])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
     import hypergs_blender.network as network
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width)
     model = random_conv(cfg)
     encoder = torch_encoder(model)
     width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
@@ -232,11 +289,11 @@ def test_tiles_give_exactly_one_pass(blocks, stem_level, monkeypatch):
     np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
 
 
-@pytest.mark.parametrize("stem_level", ["pixel", "cell"])
-def test_onnx_matches_torch(tmp_path, stem_level):
+@pytest.mark.parametrize("stem_level,error_width", [("pixel", 0), ("cell", 0), ("cell", 8)])
+def test_onnx_matches_torch(tmp_path, stem_level, error_width):
     from hypergs_blender.network import onnx_encoder
     from hypergs_blender.training.export import card_of, export_onnx
-    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level))
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level=stem_level, error_width=error_width))
     export_onnx(model, tmp_path / "m.onnx")
     onnx, torch_ = onnx_encoder(tmp_path / "m.onnx", card_of(model)), torch_encoder(model)
     rng = np.random.default_rng(0)

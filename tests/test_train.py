@@ -257,6 +257,28 @@ def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
         train.run(args)
 
 
+def test_train_only_trains_the_parts_named_and_keeps_the_rest(tmp_path, monkeypatch):
+    """--train-only error_pass: a second pass trained on a warm-started first, which stays as it came."""
+    from hypergs_blender.training.export import save_weights
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    first = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
+    with torch.no_grad():
+        first.head.weight.normal_(0, 0.05)
+    save_weights(first, tmp_path, "first")
+    args = training_args(tmp_path / "run", 3, "conv")
+    args.config, args.init_from, args.train_only = {"error_width": 8}, str(tmp_path / "first.safetensors"), ["error_pass"]
+    train.run(args)
+    trained = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
+    for k, v in first.state_dict().items():
+        torch.testing.assert_close(trained[k], v, rtol=0, atol=0, msg=k)
+    assert float(trained["error_pass.head.weight"].abs().max()) > 0  # it left its zero start
+    args.train_only = ["error_pass", "wrap"]
+    args.out = str(tmp_path / "other")
+    with pytest.raises(HyperGSError, match="--train-only: wrap not parts of this network"):
+        train.run(args)
+
+
 def test_psnr_loss_follows_the_mean_log_mse_and_keeps_an_mse_size():
     per_frame = torch.tensor([1e-4, 4e-3, 2.5e-2, 0.0], dtype=torch.float64, requires_grad=True)
     train.frame_loss(per_frame, "psnr").backward()

@@ -130,6 +130,17 @@ class LrScale(ArgType):
         return part, positive_float(value)
 
 
+class Part(ArgType):
+    """A top-level part of a network (a module name: head, error_pass, ...; checked when the run starts)."""
+
+    refused = ("", "a.b", "=3", "head=2")
+
+    def __call__(self, text: str) -> str:
+        if not text.isidentifier():
+            raise argparse.ArgumentTypeError(f"expected a top-level part of the network (a module name), got {text!r}")
+        return text
+
+
 class Name(ArgType):
     """A file name without a folder (the stem of files written into a folder)."""
 
@@ -322,6 +333,7 @@ text = Text()
 config_item = ConfigItem()
 schedule_steps = ScheduleSteps()
 lr_scale = LrScale()
+part = Part()
 name = Name()
 input_video = InputVideo()
 input_folder = InputFolder()

@@ -64,7 +64,7 @@ FLAT_WINDOW = 9
 SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "precision", "profile", "given",
                              "command"})
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
-FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale")
+FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale", "train_only")
 # --steps auto: the schedule's length, set at the end of the warm-up (whose learning rates do not depend
 # on it) from the sitting's step rate so far, for this share of the --minutes left (evaluations and
 # checkpoints take the rest)
@@ -236,13 +236,25 @@ def warm_start(model, path, rank: int = 0) -> None:
         print(f"warm start from {path}: {len(taken)} tensors; kept at initialisation: {', '.join(left)}", flush=True)
 
 
+def check_parts(model, names, flag: str) -> None:
+    """Raises HyperGSError, naming the network's parts, where `names` holds one that is not a top-level part."""
+    parts = {name for name, _ in model.named_children()}
+    unknown = sorted(set(names) - parts)
+    if unknown:
+        raise HyperGSError(f"{flag}: {', '.join(unknown)} not parts of this network ({', '.join(sorted(parts))})")
+
+
+def train_only(model, parts) -> None:
+    """Freeze every parameter outside the top-level `parts` (--train-only)."""
+    check_parts(model, parts, "--train-only")
+    for name, parameter in model.named_parameters():
+        parameter.requires_grad_(name.split(".")[0] in parts)
+
+
 def lr_groups(model, lr_scale: dict) -> list[dict]:
     """The trainable parameters in AdamW groups: one per learning-rate factor, the parameters of each
     top-level part named in `lr_scale` (part -> factor) with its factor, the rest with 1."""
-    parts = {name for name, _ in model.named_children()}
-    unknown = sorted(set(lr_scale) - parts)
-    if unknown:
-        raise HyperGSError(f"--lr-scale: {', '.join(unknown)} not parts of this network ({', '.join(sorted(parts))})")
+    check_parts(model, lr_scale, "--lr-scale")
     groups = {}
     for name, parameter in model.named_parameters():
         if parameter.requires_grad:
@@ -295,7 +307,7 @@ def resume_options(args, recorded: dict) -> list[str]:
             setattr(args, key, was)
             continue
         now = json.loads(json.dumps(_plain({key: getattr(args, key)})))[key]
-        if now == was or (key in ("config", "lr_scale") and not now and not was):
+        if now == was or (key in ("config", "lr_scale", "train_only") and not now and not was):
             continue
         flag = "--" + key.replace("_", "-")
         if key in FIXED_OPTIONS:
@@ -363,6 +375,10 @@ def run(args) -> None:
         teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
         for name, parameter in model.named_parameters():
             parameter.requires_grad_(not name.startswith("head."))
+    if args.train_only:
+        if args.distill or not conv:
+            raise HyperGSError("--train-only trains parts of a warm-started conv network, without --distill")
+        train_only(model, args.train_only)
     # the paper's thresholds (s0 32 px, ceiling 80 px at its 8 px spacing: N = 1000 on 256^2) in grid cells
     regularizer = None if conv else AdaptiveRegularizer(s0=4.0, scale_ceiling=10.0).to(device)
     if regularizer is not None and not resume and args.init_from:

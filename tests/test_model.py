@@ -273,20 +273,27 @@ def test_the_error_pass_reads_the_error_of_the_first_pass_render():
 @pytest.mark.parametrize("blocks,stem_level,error_width", [((4,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((4,), "cell", 0),
                                                           ((2,), "cell", 8)])
 def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, monkeypatch):
-    """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams."""
+    """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams. In
+    float64, so that what a pixel beyond a too-short reach changes (faint through the error pass: ~1e-5 a
+    cell short) stands out of the sums' rounding."""
     import hypergs_blender.network as network
     cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width)
-    model = random_conv(cfg)
-    encoder = torch_encoder(model)
+    model = random_conv(cfg, error_strength=0.5).double()
+
+    def forward(frames: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return model(torch.from_numpy(frames).double()).numpy()
+
+    encoder = network.NetworkEncoder(forward, cfg.stride, cfg.multiple, cfg.reach, "float64")
     width = 5 * cfg.reach + 3 * cfg.multiple  # several tiles across, the last one shorter
     frames = np.random.default_rng(1).random((2, 8 * cfg.multiple, width, 3), dtype=np.float32)
-    with torch.no_grad():
-        whole = model(torch.from_numpy(frames)).numpy()
+    whole = forward(frames)
     encoder.tile = 2 * cfg.reach + 2 * cfg.multiple
     assert len(network.tiles(frames.shape[2], cfg.reach, cfg.multiple, encoder.tile)) > 2
     columns, _ = encoder.tile_borders(frames.shape[2], frames.shape[1])
     assert columns and all(c % cfg.multiple == 0 for c in columns)
-    np.testing.assert_allclose(encoder.predict(frames), whole, atol=2e-6)
+    # the encoder's output is float32: the same numbers up to its last bit or two
+    np.testing.assert_allclose(encoder.predict(frames), whole.astype(np.float32), rtol=2.4e-7, atol=1e-7)
 
 
 @pytest.mark.parametrize("stem_level,error_width", [("pixel", 0), ("cell", 0), ("cell", 8)])

@@ -258,8 +258,9 @@ def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
 
 
 def test_train_only_trains_the_parts_named_and_keeps_the_rest(tmp_path, monkeypatch):
-    """--train-only error_pass: a second pass trained on a warm-started first, which stays as it came."""
-    from hypergs_blender.training.export import save_weights
+    """--train-only error_pass: a second pass trained on a warm-started first, which stays as it came; the
+    card records it."""
+    from hypergs_blender.training.export import export_checkpoint, save_weights
     monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     first = ConvGS(ConvConfig(width=8, stem=4, blocks=(1,)))
@@ -273,6 +274,8 @@ def test_train_only_trains_the_parts_named_and_keeps_the_rest(tmp_path, monkeypa
     for k, v in first.state_dict().items():
         torch.testing.assert_close(trained[k], v, rtol=0, atol=0, msg=k)
     assert float(trained["error_pass.head.weight"].abs().max()) > 0  # it left its zero start
+    _, info = export_checkpoint(tmp_path / "run", tmp_path / "export")
+    assert info["train_args"]["train_only"] == ["error_pass"] and "lr_scale" not in info["train_args"]
     args.train_only = ["error_pass", "wrap"]
     args.out = str(tmp_path / "other")
     with pytest.raises(HyperGSError, match="--train-only: wrap not parts of this network"):

@@ -146,6 +146,7 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
     if model.cfg.arch == "transformer":
         keys = tuple(k for k in keys if k != "size") + ("gaussians",)  # it trains on its canvas, N per step
     train_args = {k: args[k] for k in keys if k in args}
+    train_args.update({k: args[k] for k in ("lr_scale", "train_only") if args.get(k)})  # where a run used them
     for key in ("init_from", "distill"):  # the weights it started from, with their own card's record: the chain
         if args.get(key):
             train_args[key] = {"path": args[key], "info": recorded_info(args[key])}

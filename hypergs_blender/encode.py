@@ -250,8 +250,9 @@ class EncodeCost:
     frames' handling between decoder and network) is in decode_s_per_pixel. The estimate without the error
     pass, 0.28 s per frame on two threads, against whole conversions in Blender on the idle machine
     (`tools/long_clips.py --frames 30,300 --stages blender,cli`): 0.337 s per frame for 30 frames (start-up
-    included), 0.223 for 300. Recalibrate when an encoder changes (`tools/long_clips.py` prints the
-    estimate beside the measured conversion)."""
+    included), 0.223 for 300; with the error pass it reads 0.35 s (not yet checked against whole
+    conversions). Recalibrate when an encoder changes (`tools/long_clips.py` prints the estimate beside
+    the measured conversion)."""
     predict_s_per_gaussian: float  # the encoder's forward pass (with the resize to its working size), one thread
     cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
     threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)

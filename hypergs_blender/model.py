@@ -108,6 +108,7 @@ class ConvConfig:
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
     error_width: int = 0  # channels of the error pass (0: none), a second pass reading the first's render error
     error_blocks: int = 1  # its residual blocks
+    error_kernel: int = 3  # its first conv's kernel (1 or 3), from the features, head outputs and error
     error_samples: int = 2  # its render's samples per cell side (stride: one per input pixel)
     error_reach: int = 2  # cells around a sample's own whose Gaussians its render sums
 
@@ -134,7 +135,7 @@ class ConvConfig:
             if level < len(self.blocks) - 1:
                 radius += 2 * cell  # the block on the way back up
         if self.error_width:  # the error reads the Gaussians error_reach cells away; then its convs
-            radius += (self.error_reach + 1 + 2 * self.error_blocks) * self.stride
+            radius += (self.error_reach + self.error_kernel // 2 + 2 * self.error_blocks) * self.stride
         return -(-radius // self.multiple) * self.multiple
 
 
@@ -438,7 +439,8 @@ class ErrorPass(nn.Module):
     def __init__(self, cfg: ConvConfig):
         super().__init__()
         c = cfg.error_width
-        self.inputs = nn.Conv2d(cfg.width + 8 + 3 * cfg.error_samples ** 2, c, 3, padding=1)
+        self.inputs = nn.Conv2d(cfg.width + 8 + 3 * cfg.error_samples ** 2, c, cfg.error_kernel,
+                                padding=cfg.error_kernel // 2)
         self.blocks = nn.Sequential(*(ResBlock(c) for _ in range(cfg.error_blocks)))
         self.head = nn.Conv2d(c, 8, 1)
         nn.init.zeros_(self.head.weight)

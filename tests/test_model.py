@@ -198,11 +198,13 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width", [((2,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((2,), "cell", 0),
-                                                          ((1, 1, 1), "cell", 0), ((2,), "cell", 8)])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel", [
+    ((2,), "pixel", 0, 3), ((1, 1, 1), "pixel", 0, 3), ((2,), "cell", 0, 3), ((1, 1, 1), "cell", 0, 3), ((2,), "cell", 8, 3),
+    ((2,), "cell", 8, 1)])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, error_kernel):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width, error_reach=2)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
+                     error_kernel=error_kernel)
     model = random_conv(cfg, error_strength=0.5)  # the error's far reach is faint: make it show
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -270,14 +272,15 @@ def test_the_error_pass_reads_the_error_of_the_first_pass_render():
     assert float(expected.abs().mean()) > 0.5  # a real error, well above the renders' difference
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width", [((4,), "pixel", 0), ((1, 1, 1), "pixel", 0), ((4,), "cell", 0),
-                                                          ((2,), "cell", 8)])
-def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel", [
+    ((4,), "pixel", 0, 3), ((1, 1, 1), "pixel", 0, 3), ((4,), "cell", 0, 3), ((2,), "cell", 8, 3), ((2,), "cell", 8, 1)])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, error_kernel, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams. In
     float64, so that what a pixel beyond a too-short reach changes (faint through the error pass: ~1e-5 a
     cell short) stands out of the sums' rounding."""
     import hypergs_blender.network as network
-    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width)
+    cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
+                     error_kernel=error_kernel)
     model = random_conv(cfg, error_strength=0.5).double()
 
     def forward(frames: np.ndarray) -> np.ndarray:

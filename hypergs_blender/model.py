@@ -401,7 +401,7 @@ class ConvGS(nn.Module):
         return self.geometry(h, x)
 
     def geometry(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """Head outputs h [B, 8, rows, cols] (float32) and the input x [B, 3, H, W] -> params [B, N, 8]."""
+        """Head outputs h [B, 8, rows, cols] (full_precision) and the input x [B, 3, H, W] -> params [B, N, 8]."""
         cfg, s = self.cfg, self.cfg.stride
         height, width = x.shape[-2:]
         rows, cols = h.shape[-2:]
@@ -433,8 +433,8 @@ class ConvGS(nn.Module):
 
 class ErrorPass(nn.Module):
     """The second pass (ConvConfig.error_width > 0): from the first pass's cell features, its head outputs
-    and its render's error at each cell's samples to a correction of the head outputs. A 3x3 conv, residual
-    blocks, and a 1x1 head that starts at zero, so a warm start from a one-pass network starts as it."""
+    and its render's error at each cell's samples to a correction of the head outputs. A conv (error_kernel),
+    residual blocks, and a 1x1 head that starts at zero, so a warm start from a one-pass network starts as it."""
 
     def __init__(self, cfg: ConvConfig):
         super().__init__()

@@ -21,7 +21,8 @@ and more Gaussians always see more of the frame. Per frame:
          cell (render.local_render: each point sums the Gaussians of the cells within `error_reach`),
          the input minus that render, and a second small conv net from [cell features, head outputs,
          error] to a correction of the head outputs (its head starts at zero): what refinement does with
-         the render's gradient, learned, in one step (model card: "the error pass")
+         the render's gradient, learned, in one step (model card: "the error pass"); `error_iterations`
+         runs it again on the render of its own outputs
 The head starts at zero, i.e. at the Gaussian grid floor, and training learns corrections. The
 network is translation-equivariant with a finite receptive field (`ConvConfig.reach`): a frame
 encoded in tiles that overlap by at least that much gives exactly the Gaussians of one pass.
@@ -111,11 +112,14 @@ class ConvConfig:
     error_kernel: int = 3  # its first conv's kernel (1 or 3), from the features, head outputs and error
     error_samples: int = 2  # its render's samples per cell side (stride: one per input pixel)
     error_reach: int = 2  # cells around a sample's own whose Gaussians its render sums
+    error_iterations: int = 1  # times the error pass runs, each on the render of the last one's outputs
 
     def __post_init__(self):
         self.blocks = tuple(int(b) for b in self.blocks)
         if self.error_width and self.stride % self.error_samples:
             raise ValueError(f"error_samples ({self.error_samples}) must divide the stride ({self.stride})")
+        if self.error_width and self.error_iterations < 1:
+            raise ValueError(f"error_iterations must be 1 or more, got {self.error_iterations}")
 
     @property
     def multiple(self) -> int:
@@ -135,13 +139,14 @@ class ConvConfig:
             if level < len(self.blocks) - 1:
                 radius += 2 * cell  # the block on the way back up
         if self.error_width:  # the error reads the Gaussians error_reach cells away; then its convs
-            radius += (self.error_reach + self.error_kernel // 2 + 2 * self.error_blocks) * self.stride
+            radius += self.error_iterations * (self.error_reach + self.error_kernel // 2 + 2 * self.error_blocks) * self.stride
         return -(-radius // self.multiple) * self.multiple
 
 
 PRESETS = {
     # round 3's network: ahead of round 2's from scratch at equal CPU time (model card); the bundled one is it
-    # with an error pass (error_width=32), trained on it with --train-only error_pass
+    # with an error pass (error_width=32 error_samples=4 error_kernel=1), trained on it with --train-only
+    # error_pass, then both passes together
     "conv": ConvConfig(stem=96, stem_level="cell", mid=32),
     "conv-round2": ConvConfig(),  # round 2's: the stem at full resolution, blocks of 64 middle channels
     "small": TransformerConfig(),
@@ -397,7 +402,8 @@ class ConvGS(nn.Module):
         # a half-precision cell grid puts the means of a 128-px frame on a 0.5-px lattice (-0.9 dB)
         h = full_precision(self.head(features))
         if self.error_pass is not None:
-            h = self.error_pass(features, h, self.render_error(h, x))
+            for _ in range(self.cfg.error_iterations):  # one set of weights: each run corrects the last
+                h = self.error_pass(features, h, self.render_error(h, x))
         return self.geometry(h, x)
 
     def geometry(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

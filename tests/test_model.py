@@ -198,13 +198,13 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel", [
-    ((2,), "pixel", 0, 3), ((1, 1, 1), "pixel", 0, 3), ((2,), "cell", 0, 3), ((1, 1, 1), "cell", 0, 3), ((2,), "cell", 8, 3),
-    ((2,), "cell", 8, 1)])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, error_kernel):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations", [
+    ((2,), "pixel", 0, 3, 1), ((1, 1, 1), "pixel", 0, 3, 1), ((2,), "cell", 0, 3, 1), ((1, 1, 1), "cell", 0, 3, 1),
+    ((2,), "cell", 8, 3, 1), ((2,), "cell", 8, 1, 1), ((2,), "cell", 8, 1, 2)])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, error_kernel, error_iterations):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
     cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
-                     error_kernel=error_kernel)
+                     error_kernel=error_kernel, error_iterations=error_iterations)
     model = random_conv(cfg, error_strength=0.5)  # the error's far reach is faint: make it show
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -219,6 +219,13 @@ def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, 
         out_near = model(near).reshape(size // cfg.stride, size // cfg.stride, 8)[cell, cell]
     torch.testing.assert_close(out_far, base, atol=1e-6, rtol=0)
     assert (out_near - base).abs().max() > 1e-6
+
+
+@pytest.mark.parametrize("fields,message", [(dict(error_samples=3), "must divide the stride"),
+                                            (dict(error_iterations=0), "error_iterations must be 1 or more")])
+def test_an_error_pass_config_that_cannot_run_is_refused(fields, message):
+    with pytest.raises(ValueError, match=message):
+        ConvConfig(error_width=8, **fields)
 
 
 def test_a_new_error_pass_starts_as_the_network_it_was_added_to():
@@ -272,15 +279,16 @@ def test_the_error_pass_reads_the_error_of_the_first_pass_render():
     assert float(expected.abs().mean()) > 0.5  # a real error, well above the renders' difference
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel", [
-    ((4,), "pixel", 0, 3), ((1, 1, 1), "pixel", 0, 3), ((4,), "cell", 0, 3), ((2,), "cell", 8, 3), ((2,), "cell", 8, 1)])
-def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, error_kernel, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations", [
+    ((4,), "pixel", 0, 3, 1), ((1, 1, 1), "pixel", 0, 3, 1), ((4,), "cell", 0, 3, 1), ((2,), "cell", 8, 3, 1),
+    ((2,), "cell", 8, 1, 1), ((2,), "cell", 8, 1, 2)])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, error_kernel, error_iterations, monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams. In
     float64, so that what a pixel beyond a too-short reach changes (faint through the error pass: ~1e-5 a
     cell short) stands out of the sums' rounding."""
     import hypergs_blender.network as network
     cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
-                     error_kernel=error_kernel)
+                     error_kernel=error_kernel, error_iterations=error_iterations)
     model = random_conv(cfg, error_strength=0.5).double()
 
     def forward(frames: np.ndarray) -> np.ndarray:
@@ -397,3 +405,19 @@ def test_rebox_scales_the_colours_to_the_new_box_and_resolve_refuses_weights_for
     assert card["sigma_cutoff"] == SIGMA_CUTOFF and card["info"]["reboxed_from"] == 3.0
     onnx_params = resolve_encoder("network", "onnx", weights=tmp_path / "old.json", threads=1).predict(frames.numpy())
     np.testing.assert_allclose(onnx_params, after.numpy(), atol=1e-5, rtol=0)
+
+
+def test_rebox_refuses_weights_with_an_error_pass_and_leaves_them_as_they_were(tmp_path):
+    """The error pass reads the error of a render of the first pass's colours: scaling them changes what it
+    reads, so no rescale gives the old image; rebox says so and writes nothing."""
+    import json
+
+    from hypergs_blender.errors import HyperGSError
+    from hypergs_blender.training.export import rebox, save_weights
+    save_weights(random_conv(ConvConfig(width=8, stem=4, blocks=(1,), error_width=8)), tmp_path, "old")
+    card = json.loads((tmp_path / "old.json").read_text())
+    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in card.items() if k != "sigma_cutoff"}))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    with pytest.raises(HyperGSError, match="error pass.*retrain"):
+        rebox(tmp_path, "old")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

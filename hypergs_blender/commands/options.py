@@ -117,19 +117,6 @@ class ConfigItem(ArgType):
             return field, value
 
 
-class LrScale(ArgType):
-    """PART=FACTOR: a top-level part of a network (a module name: head, stem, ...; checked when the run
-    starts) and a positive learning-rate factor for its parameters."""
-
-    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a.b=2")
-
-    def __call__(self, text: str) -> tuple[str, float]:
-        part, sep, value = text.partition("=")
-        if not sep or not part.isidentifier():
-            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a top-level part of the network), got {text!r}")
-        return part, positive_float(value)
-
-
 class Part(ArgType):
     """A top-level part of a network (a module name: head, error_pass, ...; checked when the run starts)."""
 
@@ -139,6 +126,19 @@ class Part(ArgType):
         if not text.isidentifier():
             raise argparse.ArgumentTypeError(f"expected a top-level part of the network (a module name), got {text!r}")
         return text
+
+
+class LrScale(ArgType):
+    """PART=FACTOR: a top-level part of a network (a module name: head, stem, ...; checked when the run
+    starts) and a positive learning-rate factor for its parameters."""
+
+    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a.b=2")
+
+    def __call__(self, text: str) -> tuple[str, float]:
+        part, sep, value = text.partition("=")
+        if not sep:
+            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a top-level part of the network), got {text!r}")
+        return Part()(part), positive_float(value)
 
 
 class Name(ArgType):

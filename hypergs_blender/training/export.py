@@ -92,6 +92,9 @@ def rebox(directory, name: str) -> float | None:
     if getattr(model.cfg, "parametrization", "local") != "local":
         raise HyperGSError(f"{name}: the {model.cfg.parametrization!r} parametrization's colours (a sigmoid) "
                            "cannot be rescaled; retrain it")
+    if getattr(model, "error_pass", None) is not None:
+        raise HyperGSError(f"{name}: its error pass reads the error of a render of these colours, which a rescale "
+                           "would change; retrain it (hypergs train --init-from)")
     ratio = lattice_gain(INITIAL_SIGMA) / lattice_gain(INITIAL_SIGMA, old)
     with torch.no_grad():
         model.head.weight[5:8] *= ratio

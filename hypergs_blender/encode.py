@@ -276,7 +276,8 @@ ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "t
     "transformer": EncodeCost(predict_s_per_gaussian=3.5e-5, predict_s_per_window=0.022, predict_s_per_pair=2.8e-8,
                               cache_bytes_per_gaussian=12.4),
 }
-THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (0.234 s on 2 vs 0.405 on 1)
+THREAD_GAIN = 0.7  # what each CPU thread past the first adds to the network's speed (session 20's model: 0.234 s
+# on 2 vs 0.405 on 1; session 21's: 0.262-0.268 vs 0.421-0.427, a gain of 0.6, within the sittings' spread)
 
 
 @dataclass(frozen=True)

@@ -338,6 +338,13 @@ def test_flat_pixel_weights_mark_the_flat_pixels_by_evals_criterion():
     assert float(weights[0, 0, 20, 15, 0]) == 10.0 and float(weights[0, 0, 20, 16, 0]) == 1.0  # 5 px from the edge
     assert bool((weights[0, 1] == 10.0).all())
     assert bool((train.flat_pixel_weights(frames, 0.0) == 1.0).all())
+    # as the training step calls it, under bfloat16 autocast: a bright frame with a std of 1.5/255 is not flat
+    # (in bfloat16 its sums of squares round by more than their variance: about half its windows would read flat)
+    frames[0, 1] = 0.8 + 1.5 / 255 * torch.randn(40, 40, 3)
+    weights = train.flat_pixel_weights(frames, 9.0)
+    assert float(weights[0, 1].mean()) < 2.0
+    with train.forward_autocast(torch.device("cpu"), "bfloat16"):
+        assert torch.equal(train.flat_pixel_weights(frames, 9.0), weights)
 
 
 def test_flat_weight_raises_the_loss_of_an_error_in_a_flat_region_only():

@@ -154,14 +154,25 @@ def frame_loss(per_frame_mse: torch.Tensor, loss: str) -> torch.Tensor:
     return torch.mean(weights / weights.mean() * per_frame_mse)
 
 
+def box_sum(x: torch.Tensor, window: int) -> torch.Tensor:
+    """[N, C, H, W] -> the sums over the window x window pixels around each pixel (zero outside the frame;
+    window odd), as two 1-D depthwise convolutions: 18x faster than avg_pool2d's 2-D window on a CPU,
+    which made --flat-weight's steps 1.4-1.6x slower. In x's precision under the training step's autocast too
+    (in bfloat16 a 9 x 9 sum of values near 1 is 2 % off: the flat criterion's std is 1/255)."""
+    c, half = x.shape[1], window // 2
+    with torch.autocast(x.device.type, enabled=False):
+        x = F.conv2d(x, x.new_ones(c, 1, window, 1), padding=(half, 0), groups=c)
+        return F.conv2d(x, x.new_ones(c, 1, 1, window), padding=(0, half), groups=c)
+
+
 def flat_pixel_weights(frames: torch.Tensor, flat_weight: float) -> torch.Tensor:
     """[..., H, W, 3] frames -> [..., H, W, 1] weights: 1 + flat_weight where the pixel is flat (FLAT_STD,
     FLAT_WINDOW), else 1. Under plain MSE a ripple of 1/255 in a flat region costs a thousandth of a
     30-dB frame's error, so nothing teaches the network to render flat regions flat."""
     shape = frames.shape
     x = frames.reshape(-1, *shape[-3:]).permute(0, 3, 1, 2).float()
-    mean = F.avg_pool2d(x, FLAT_WINDOW, 1, FLAT_WINDOW // 2, count_include_pad=False)
-    square = F.avg_pool2d(x * x, FLAT_WINDOW, 1, FLAT_WINDOW // 2, count_include_pad=False)
+    moments = box_sum(torch.cat([x, x * x], 1), FLAT_WINDOW) / box_sum(torch.ones_like(x[:1, :1]), FLAT_WINDOW)
+    mean, square = moments.chunk(2, 1)
     std = (square - mean * mean).clamp_min(0).sqrt()
     flat = (std < FLAT_STD).all(1, keepdim=True).permute(0, 2, 3, 1)
     return (1 + flat_weight * flat.to(frames.dtype)).reshape(*shape[:-1], 1)

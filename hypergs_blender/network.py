@@ -234,7 +234,7 @@ def read_card(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME) -> dict:
 
 def card_sigma_cutoff(card: dict) -> float:
     """The box (raster.SIGMA_CUTOFF) a model's colours were trained for: cards record it since the box
-    widened from 3 to 3.5 sigmas; every card without it was trained under 3."""
+    widened from 3 to 3.5 sigmas (and to 4 in session 22); every card without it was trained under 3."""
     return float(card.get("sigma_cutoff", 3.0))
 
 

@@ -46,7 +46,7 @@ def local_render(params, rows: int, cols: int, stride: int, samples: int, reach:
     its cell of a (cols stride) x (rows stride) canvas, as the conv network makes them) at samples x
     samples points per cell, each point summing the Gaussians of the (2 reach + 1)^2 cells around its own
     -> [B, 3, rows samples, cols samples]. A fixed loop of element-wise ops over shifted per-cell maps:
-    exportable to ONNX, and linear in the cells. Without the 3.5-sigma box, and blind to Gaussians that
+    exportable to ONNX, and linear in the cells. Without the rasterizer's box, and blind to Gaussians that
     moved further than reach cells: close to render_torch's (its tests), for the error pass to read."""
     import torch
     import torch.nn.functional as F

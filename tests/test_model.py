@@ -245,8 +245,8 @@ def test_a_new_error_pass_starts_as_the_network_it_was_added_to():
 
 def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
     """The error pass's render: per-cell Gaussians (moved up to a quarter cell, 0.2 to 0.5 cells wide: within
-    reach 2 to 4.7 sigma) at samples^2 points per cell, against the rasterizer (which cuts them at 3.5
-    sigma); with reach 0 it misses the light of the neighbours' Gaussians."""
+    reach 2 to 4.7 sigma) at samples^2 points per cell, against the rasterizer (which cuts them at its
+    box); with reach 0 it misses the light of the neighbours' Gaussians."""
     rows, cols, stride = 6, 8, 4
     rng = torch.Generator().manual_seed(0)
     cy, cx = torch.meshgrid(torch.arange(rows) + 0.5, torch.arange(cols) + 0.5, indexing="ij")
@@ -259,7 +259,7 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
         exact = render_torch(params, cols * stride, rows * stride, cols * samples, rows * samples).permute(0, 3, 1, 2)
         local = local_render(params, rows, cols, stride, samples, reach=2)
         assert local.shape == (1, 3, rows * samples, cols * samples)
-        torch.testing.assert_close(local, exact, atol=3e-3, rtol=0)  # the rasterizer's 3.5-sigma box
+        torch.testing.assert_close(local, exact, atol=3e-3, rtol=0)  # the rasterizer's box
         alone = local_render(params, rows, cols, stride, samples, reach=0)
         assert float((alone - exact).abs().max()) > 0.1
 
@@ -405,6 +405,10 @@ def test_rebox_scales_the_colours_to_the_new_box_and_resolve_refuses_weights_for
     assert card["sigma_cutoff"] == SIGMA_CUTOFF and card["info"]["reboxed_from"] == 3.0
     onnx_params = resolve_encoder("network", "onnx", weights=tmp_path / "old.json", threads=1).predict(frames.numpy())
     np.testing.assert_allclose(onnx_params, after.numpy(), atol=1e-5, rtol=0)
+    # a second conversion (as the 3.5-sigma weights to 4) keeps the box the colours were trained under
+    (tmp_path / "old.json").write_text(json.dumps(dict(card, sigma_cutoff=3.5)))
+    assert rebox(tmp_path, "old") == 3.5
+    assert json.loads((tmp_path / "old.json").read_text())["info"]["reboxed_from"] == 3.0
 
 
 def test_rebox_refuses_weights_with_an_error_pass_and_leaves_them_as_they_were(tmp_path):

@@ -103,7 +103,8 @@ def rebox(directory, name: str) -> float | None:
     # export, the card and safetensors are the old ones, so the runtime refuses them and a second rebox
     # starts again from them
     export_onnx(model, Path(directory) / f"{name}.onnx")
-    save_weights(model, directory, name, dict(card.get("info", {}), reboxed_from=old))
+    info = card.get("info", {})  # reboxed_from: the box the colours were trained under, kept through conversions
+    save_weights(model, directory, name, dict(info, reboxed_from=info.get("reboxed_from", old)))
     return old
 
 

@@ -58,7 +58,8 @@ if TYPE_CHECKING:
 # 1-px column per cell, 41 % of the flat ripple on Kleiber's sky (MODEL_CARD.md, session 16); at 3.5 sigma
 # the edge is 0.2 %, still a lattice pattern on smooth gradients that the network's error pass, which reads
 # an uncut render, cannot see; at 4 sigma (0.03 %) the flat ripple at Standard falls from 1.79x the source's
-# to 1.15x at the same PSNR (session 22), for 1.31x 3.5's box area (5 sigma measured no better).
+# to 1.15x at the same PSNR, 1.04x once trained under it (session 22), for 1.31x 3.5's box area (5 sigma
+# measured no better).
 SIGMA_CUTOFF = 4.0
 MAX_EXTENT = 1e7  # fast paths treat Gaussians with |mean| or box radius >= 1e7 px as invalid
 

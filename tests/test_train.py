@@ -238,6 +238,27 @@ def test_a_resume_keeps_the_runs_options_but_those_given_again(tmp_path, monkeyp
     assert "--preset small: the run in" in capsys.readouterr().err and recorded()[0] == 4
 
 
+
+def test_a_checkpoint_records_its_box_and_is_not_resumed_or_exported_under_another(tmp_path, monkeypatch):
+    """The colours a run learns are for the rasterizer's box (raster.SIGMA_CUTOFF): a checkpoint records it,
+    and resuming or exporting it where HyperGS renders with another box is refused, writing nothing."""
+    from hypergs_blender.raster import SIGMA_CUTOFF
+    from hypergs_blender.training.export import export_checkpoint
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
+    train.run(training_args(tmp_path / "run", 2, "conv"))
+    path = tmp_path / "run" / "checkpoint.pt"
+    state = torch.load(path, weights_only=True)
+    assert state["sigma_cutoff"] == SIGMA_CUTOFF
+    export_checkpoint(tmp_path / "run", tmp_path / "export")  # the same box: exports
+    state["sigma_cutoff"] = SIGMA_CUTOFF - 0.5
+    torch.save(state, path)
+    with pytest.raises(HyperGSError, match=f"trained under a {SIGMA_CUTOFF - 0.5:g}-sigma box"):
+        train.run(training_args(tmp_path / "run", 4, "conv"))
+    with pytest.raises(HyperGSError, match="resume or export it with the HyperGS that trained it"):
+        export_checkpoint(tmp_path / "run", tmp_path / "other")
+    assert int(torch.load(path, weights_only=True)["step"]) == 2 and not (tmp_path / "other").exists()
+
 def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
     args = training_args(tmp_path / "run", 4, "conv")
     args.lr_scale = {"head": 30.0}

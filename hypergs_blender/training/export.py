@@ -123,6 +123,13 @@ def load_checkpoint(path) -> dict:
         raise HyperGSError(f"{path}: not a readable checkpoint ({reason(e)})") from None
     if not isinstance(state, dict):
         raise HyperGSError(f"{path}: not a training checkpoint")
+    # The colours a run learns are for the box it renders with: resumed or exported under another, they would
+    # be wrong for it. Checkpoints record their box since session 22 (older ones: whatever box their code had).
+    box = float(state.get("sigma_cutoff", SIGMA_CUTOFF))
+    if box != SIGMA_CUTOFF:
+        raise HyperGSError(f"{path}: trained under a {box:g}-sigma box, and this HyperGS renders with "
+                           f"{SIGMA_CUTOFF:g}: resume or export it with the HyperGS that trained it, or start a new "
+                           "run from its export (--init-from)")
     return state
 
 

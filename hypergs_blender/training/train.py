@@ -436,7 +436,7 @@ def run(args) -> None:
     def save():
         state = dict(model=model.state_dict(), optimizer=optimizer.state_dict(), step=step, wall_seconds=wall,
                      cpu_seconds=cpu, config=json.dumps(config), args=json.dumps(_plain(vars(args))),
-                     torch_rng=torch.get_rng_state())
+                     torch_rng=torch.get_rng_state(), sigma_cutoff=raster.SIGMA_CUTOFF)
         if regularizer is not None:
             state["regularizer"] = regularizer.state_dict()
         tmp = checkpoint_path.with_suffix(".tmp")

@@ -23,8 +23,11 @@ def test_cosine_schedule():
     assert min(lrs[100:]) == pytest.approx(0.1, abs=1e-4) and lrs[550] == pytest.approx(0.55, abs=0.01)
 
 
-@pytest.mark.parametrize("parametrization", ["local", "paper"])
-def test_tiny_model_overfits_one_clip(parametrization):
+# The paper's parametrization (scales |h| + eps) at lr 1e-2 can collapse its Gaussians to sub-pixel scales
+# within 15 steps and learn nothing: 2 of 4 seeds under the 4-sigma box, none under 3.5 (session 22); at 3e-3
+# over 300 steps all 4 learn (+7.7 to +20.7 dB) under both boxes.
+@pytest.mark.parametrize("parametrization, lr, steps", [("local", 1e-2, 150), ("paper", 3e-3, 300)])
+def test_tiny_model_overfits_one_clip(parametrization, lr, steps):
     torch.manual_seed(0)
     # a clip with structure: two coloured blocks moving over a gradient
     clip = np.zeros((1, 2, 32, 32, 3), np.float32)
@@ -34,13 +37,13 @@ def test_tiny_model_overfits_one_clip(parametrization):
         clip[0, t, 20:28, 18:26] = [0.1, 0.3, 0.9]
     frames = torch.from_numpy(clip)
     model = HyperGS(TransformerConfig(**TINY, parametrization=parametrization, max_gaussians=64))
-    optimizer = Lamb(parameter_groups(model), lr=1e-2)
+    optimizer = Lamb(parameter_groups(model), lr=lr)
     for group in optimizer.param_groups:
-        group["lr"] = 1e-2 * group["lr_scale"]
+        group["lr"] = lr * group["lr_scale"]
     reg = AdaptiveRegularizer()
     anchors, cell = anchor_inputs(64)
     psnrs = []
-    for step in range(150):
+    for step in range(steps):
         params = model(frames, anchors, cell)
         mse = torch.mean((render_torch(params, 32, 32, 32, 32) - frames) ** 2)
         loss = mse + reg(params[..., 2:4])[0]

@@ -241,7 +241,6 @@ def test_a_resume_keeps_the_runs_options_but_those_given_again(tmp_path, monkeyp
     assert "--preset small: the run in" in capsys.readouterr().err and recorded()[0] == 4
 
 
-
 def test_a_checkpoint_records_its_box_and_is_not_resumed_or_exported_under_another(tmp_path, monkeypatch):
     """The colours a run learns are for the rasterizer's box (raster.SIGMA_CUTOFF): a checkpoint records it,
     and resuming or exporting it where HyperGS renders with another box is refused, writing nothing."""
@@ -261,6 +260,7 @@ def test_a_checkpoint_records_its_box_and_is_not_resumed_or_exported_under_anoth
     with pytest.raises(HyperGSError, match="resume or export it with the HyperGS that trained it"):
         export_checkpoint(tmp_path / "run", tmp_path / "other")
     assert int(torch.load(path, weights_only=True)["step"]) == 2 and not (tmp_path / "other").exists()
+
 
 def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
     args = training_args(tmp_path / "run", 4, "conv")

@@ -14,13 +14,11 @@ import threading
 import time
 from dataclasses import dataclass
 
-from ..hypergs_blender.encode import EncodePlan, EncodeSettings
+from ..hypergs_blender.encode import EncodePlan, EncodeSettings, psnr_sample_count
 from ..hypergs_blender.io import cache
 from ..hypergs_blender.io.files import make_folders, remove_folders
 from ..hypergs_blender.io.hgs import HgsHeader
 from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
-
-PSNR_FRAMES = 8  # frames (evenly spread) whose PSNR against the source is measured while encoding
 
 
 @dataclass(frozen=True)
@@ -46,13 +44,14 @@ class EncodeResult:
 def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, runtime: Runtime = Runtime(),
                progress=None) -> EncodeResult:
     """Encode `source` with `encoder` (make_encoder(runtime, settings.model)) into a new frame cache at `target` (its
-    folder must exist), measuring the PSNR of up to PSNR_FRAMES frames on the frames the encode decoded.
+    folder must exist), measuring the PSNR of frames spread over the clip (encode.psnr_sample_count of them) on the
+    frames the encode decoded.
     progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
     plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
     with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
                       plan.source) as writer:
-        for _, params in plan.chunks(progress, psnr_frames=PSNR_FRAMES):
+        for _, params in plan.chunks(progress, psnr_frames=psnr_sample_count(len(plan.indices))):
             writer.write(params)
     return EncodeResult(target, writer.header, plan.psnr, time.perf_counter() - started,
                         describe_encoder(encoder, runtime))

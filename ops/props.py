@@ -35,8 +35,9 @@ class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
     gaussians_per_frame: IntProperty(name="Gaussians per Frame", default=0, min=0)
     grid: IntVectorProperty(name="Cells", size=2, default=(1, 1), min=1,
                             description="Columns and rows of the cells the Gaussians were predicted on")
-    psnr: FloatProperty(name="PSNR", description="Measured at encode time against the source frames (dB)",
-                        default=0.0, precision=2)
+    psnr: FloatProperty(name="PSNR", default=0.0, precision=2,
+                        description="Measured at encode time against the source on frames spread over the clip, "
+                                    "one in 32 (dB)")
     encoder: StringProperty(name="Encoder")
     encode_seconds: FloatProperty(name="Encode Time", default=0.0, precision=1, subtype="TIME_ABSOLUTE")
     canvas_width: IntProperty(name="Width", default=0, min=0)

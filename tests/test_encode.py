@@ -5,7 +5,8 @@ import pytest
 
 from hypergs_blender.commands.cli import main
 from hypergs_blender.encode import (DEFAULT_QUALITY, MAX_CELL, QUALITY, Cancelled, EncodePlan, EncodeSettings,
-                                    FloorEncoder, encode_frames, encode_video, frames_layout, plan_layout)
+                                    FloorEncoder, encode_frames, encode_video, frames_layout, plan_layout,
+                                    psnr_sample_count)
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.io.clips import load_clip
 from hypergs_blender.io.frames import read_frames
@@ -220,6 +221,12 @@ def test_plan_measures_the_psnr_of_spread_frames(moving_video):
     expected = psnr(rendered, frames[[0, 6, 11]] / np.float32(255))
     np.testing.assert_allclose(plan.psnr_values, expected, rtol=1e-6)
     assert plan.psnr == pytest.approx(float(np.mean(expected)))
+
+
+@pytest.mark.parametrize("frames,sampled", [(0, 0), (1, 1), (30, 1), (32, 1), (33, 2), (100, 4), (256, 8), (1800, 8)])
+def test_a_conversion_measures_one_frame_in_32_and_at_most_8(frames, sampled):
+    # The PSNR check is a full render per sampled frame: its share of a conversion must not grow for short clips.
+    assert psnr_sample_count(frames) == sampled
 
 
 @pytest.mark.parametrize("argv,expected", [

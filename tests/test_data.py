@@ -239,6 +239,37 @@ def test_collect_photos_dedupes_and_filters(tmp_path):
     assert len(lines) == 3
 
 
+def test_package_images_take_the_largest_of_each_plasma_wallpaper(tmp_path):
+    files = ["usr/share/backgrounds/mate/nature/Aqua.jpg", "usr/share/backgrounds/mate/Flow.png",
+             "usr/share/backgrounds/mate/readme.txt",
+             "usr/share/wallpapers/Altai/contents/images/1080x1920.png",
+             "usr/share/wallpapers/Altai/contents/images/5120x2880.png",
+             "usr/share/wallpapers/Altai/contents/images/2560x1440.png",
+             "usr/share/wallpapers/Altai/contents/images_dark/5120x2880.png",
+             "usr/share/wallpapers/Altai/contents/screenshot.png",
+             "usr/share/wallpapers/Path/contents/images/2560x1600.jpg"]
+    for f in files:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_bytes(b"x")
+    (tmp_path / "usr/share/backgrounds/link.jpg").symlink_to(tmp_path / files[0])
+    found = {name: str(path.relative_to(tmp_path)) for path, name in prepare.package_images(tmp_path)}
+    assert found == {"Aqua.jpg": files[0], "Flow.png": files[1], "Altai_5120x2880.png": files[4],
+                     "Path_2560x1600.jpg": files[8]}
+
+
+def test_pinned_photos_are_held_out_first(tmp_path):
+    rng = np.random.default_rng(3)
+    for name in ("a.jpg", "b.jpg", "c.jpg", "d.png"):
+        write_image(tmp_path / name, smooth_texture(rng, 160, 200, blur=2))
+    keep, groups = prepare._collect_photos(list_images(tmp_path), log=lambda *a: None)
+    names = [r["path"].name for r in keep]
+    by_hash = [names[i] for i in prepare._split_val(keep, groups, 2, pinned=())]
+    pinned = [n for n in names if n not in by_hash][:1]  # one the hash rule would not hold out
+    chosen = [names[i] for i in prepare._split_val(keep, groups, 2, pinned=pinned)]
+    assert len(set(groups)) == 4 and pinned[0] in chosen and len(chosen) == 2
+    assert set(chosen) - set(pinned) <= set(by_hash)
+
+
 def test_validation_clips(photo_root, tmp_path):
     a = data.validation_clips(photo_root, clip_frames=2, size=32, count=4)
     b = data.validation_clips(photo_root, clip_frames=2, size=32, count=4)
@@ -249,6 +280,13 @@ def test_validation_clips(photo_root, tmp_path):
         c = data.validation_clips(tmp_path, clip_frames=2, size=32, count=2)
     assert c.shape == (2, 2, 32, 32, 3)
     assert any("procedural" in str(w.message) for w in caught)
+
+
+def test_cli_prepare_takes_the_packages_to_download():
+    parser = argparse.ArgumentParser()
+    data_commands.add_commands(parser.add_subparsers(dest="command"))
+    assert parser.parse_args(["prepare-data"]).packages == list(prepare.WALLPAPER_PACKAGES)
+    assert parser.parse_args(["prepare-data", "--packages", "a", "b"]).packages == ["a", "b"]
 
 
 def test_cli_prepare_and_preview(photo_folder, tmp_path, capsys):

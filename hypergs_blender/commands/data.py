@@ -6,7 +6,7 @@ import sys
 
 from ..io.images import write_image
 from ..training.data import DEFAULT_SPEC, build_sources, contact_sheet
-from ..training.prepare import VAL_PHOTO_COUNT, prepare_photos, prepare_videos
+from ..training.prepare import VAL_PHOTO_COUNT, WALLPAPER_PACKAGES, prepare_photos, prepare_videos
 from ..training.sources import DEFAULT_ROOT, make_batch
 from ..io.images import IMAGE_EXTENSIONS
 from . import options
@@ -26,6 +26,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--videos", nargs="+", default=[], metavar="FOLDER", type=options.input_folder,
                    help="pre-extract a clip cache from each folder of videos (use videos=FOLDER in the "
                         "training spec)")
+    p.add_argument("--packages", nargs="+", default=list(WALLPAPER_PACKAGES), metavar="PACKAGE", type=options.text,
+                   help="the Debian packages whose images ROOT/photos is filled with when it is empty (default: "
+                        "%(default)s; the bundled model trained on the first five)")
     p.add_argument("--val-photos", type=options.non_negative_int, default=VAL_PHOTO_COUNT,
                    help="held-out photos (default: %(default)s)")
     p.add_argument("--video-size", type=options.image_side, default=256,
@@ -51,7 +54,8 @@ def add_commands(subparsers) -> None:
 def _cmd_prepare(args) -> None:
     do_photos = args.photos or args.photo_folder is not None or not args.videos
     if do_photos:
-        prepare_photos(args.root, folder=args.photo_folder, force=args.force, val_count=args.val_photos)
+        prepare_photos(args.root, folder=args.photo_folder, force=args.force, val_count=args.val_photos,
+                       packages=args.packages)
     for folder in args.videos:
         prepare_videos(folder, args.root, cache_size=args.video_size, cache_frames=args.video_frames,
                        clips_per_video=args.clips_per_video, force=args.force)

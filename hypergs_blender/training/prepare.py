@@ -23,9 +23,14 @@ from .photos import (PHOTO_CACHE, PHOTO_MAX_SHORT_SIDE, PHOTO_VAL_CACHE, PHOTOS_
 from .sources import DEFAULT_ROOT, DataError
 from .videos import CACHE_VERSION, list_videos, video_cache_dir
 
-WALLPAPER_PACKAGES = ("gnome-backgrounds", "mate-backgrounds", "ukui-wallpapers",
-                      "lomiri-wallpapers-16.04", "lomiri-wallpapers-20.04")
+WALLPAPER_PACKAGES = ("gnome-backgrounds", "mate-backgrounds", "ukui-wallpapers", "lomiri-wallpapers-16.04",
+                      "lomiri-wallpapers-20.04", "plasma-workspace-wallpapers", "mypaint-data-extras")
 VAL_PHOTO_COUNT = 4
+# The default set's held-out photos: what _split_val chose from the first five packages, which every val figure
+# and the held-out videos (tools/make_heldout_videos.py) have used since; pinned, so that a package added to the
+# set trains rather than moves the validation.
+DEFAULT_VAL_PHOTOS = ("lomiri-wallpapers-20.04__Kleiber_by_Lukas_Baubkus.jpg", "mate-backgrounds__Aqua.jpg",
+                      "mate-backgrounds__Elephants_5640x3172.jpg", "mate-backgrounds__LadyBird.jpg")
 
 
 def _thumb(image: np.ndarray, n: int = 32) -> np.ndarray:
@@ -113,15 +118,16 @@ def _collect_photos(paths, log=print, max_short_side=PHOTO_MAX_SHORT_SIDE, min_s
     return keep, groups
 
 
-def _split_val(keep, groups, val_count):
-    """Held-out photos: val_count singleton groups (no variant of them is trained on), detailed
-    JPEGs first (photographs rather than graphics), chosen by a hash of the file name (stable)."""
+def _split_val(keep, groups, val_count, pinned=DEFAULT_VAL_PHOTOS):
+    """Held-out photos: val_count singleton groups (no variant of them is trained on): the `pinned` file names
+    that are there first, then detailed JPEGs (photographs rather than graphics), chosen by a hash of the file
+    name (stable)."""
     sizes = {g: groups.count(g) for g in groups}
 
-    def rank(i):  # detailed JPEGs (photographs, not flat graphics) first
+    def rank(i):  # the pinned ones, then detailed JPEGs (photographs, not flat graphics)
         path = keep[i]["path"]
         photo = path.suffix.lower() in (".jpg", ".jpeg") and detail(keep[i]["image"]) >= 8.0
-        return (not photo, hashlib.sha1(path.name.encode()).hexdigest())
+        return (path.name not in pinned, not photo, hashlib.sha1(path.name.encode()).hexdigest())
 
     order = sorted(range(len(keep)), key=rank)
     val = [i for i in order if sizes[groups[i]] == 1][:val_count]
@@ -134,6 +140,29 @@ def _split_val(keep, groups, val_count):
     if len(keep) - len(val) < 1:
         val = val[:max(0, len(keep) - 1)]
     return sorted(val)
+
+
+def package_images(root) -> list[tuple[Path, str]]:
+    """The images (.jpg/.png/.webp files, not links) of a package unpacked into `root`, each with the name it is
+    copied under. A Plasma wallpaper (NAME/contents/images/WxH.ext, one file per screen size, beside a screenshot
+    and dark variants) gives its largest image only, as NAME_WxH.ext; any other image keeps its own name."""
+    import re
+
+    plasma, out = {}, []
+    for f in sorted(Path(root).rglob("*")):
+        if not f.is_file() or f.is_symlink() or f.suffix.lower() not in (".jpg", ".jpeg", ".png", ".webp"):
+            continue
+        if "contents" in f.parts[:-1]:
+            size = re.fullmatch(r"(\d+)x(\d+)", f.stem)
+            if f.parent.name == "images" and f.parent.parent.name == "contents" and size:
+                name = f.parent.parent.parent.name
+                pixels = int(size[1]) * int(size[2])
+                if name not in plasma or pixels > plasma[name][0]:
+                    plasma[name] = (pixels, f)
+            continue
+        out.append((f, f.name))
+    out += [(f, f"{name}_{f.name}") for name, (_, f) in sorted(plasma.items())]
+    return out
 
 
 def _folder_manifest(paths, folder) -> list:
@@ -276,14 +305,12 @@ def download_wallpapers(dest, packages=WALLPAPER_PACKAGES, log=print) -> list[Pa
             if r.returncode != 0:
                 log(f"  warning: dpkg -x {deb.name} failed: {r.stderr.strip()}; skipped")
                 continue
-            for f in sorted(root.rglob("*")):
-                if not f.is_file() or f.is_symlink() or f.suffix.lower() not in (".jpg", ".jpeg", ".png", ".webp"):
-                    continue
+            for f, name in package_images(root):
                 digest = hashlib.sha1(f.read_bytes()).hexdigest()
                 if digest in digests:
                     continue
                 digests.add(digest)
-                target = dest / f"{pkg}__{f.name}"
+                target = dest / f"{pkg}__{name}"
                 shutil.copyfile(f, target)
                 copied.append(target)
     log(f"  {len(copied)} images from {len(debs)} packages copied to {dest}")
@@ -291,8 +318,8 @@ def download_wallpapers(dest, packages=WALLPAPER_PACKAGES, log=print) -> list[Pa
 
 
 def prepare_photos(root=DEFAULT_ROOT, folder=None, force: bool = False, val_count: int = VAL_PHOTO_COUNT,
-                   log=print) -> tuple[Path, Path]:
-    """Fill ROOT/photos from the wallpaper packages (unless it has images, or `folder` is given),
+                   packages=WALLPAPER_PACKAGES, log=print) -> tuple[Path, Path]:
+    """Fill ROOT/photos from the wallpaper `packages` (unless it has images, or `folder` is given),
     then write ROOT/photos_cache.npz (training) and ROOT/photos_val_cache.npz (val_count held-out
     photos). Skips caches that are up to date with the folder unless force (which rebuilds the
     caches, not the download)."""
@@ -301,8 +328,8 @@ def prepare_photos(root=DEFAULT_ROOT, folder=None, force: bool = False, val_coun
     if folder is None:
         folder = root / PHOTOS_DIR
         if not list_images(folder):
-            log(f"photos: downloading {len(WALLPAPER_PACKAGES)} wallpaper packages into {folder}")
-            download_wallpapers(folder, log=log)
+            log(f"photos: downloading {len(packages)} wallpaper packages into {folder}")
+            download_wallpapers(folder, packages, log=log)
         else:
             log(f"photos: using the images in {folder} (delete it to download them again)")
     folder = Path(folder)

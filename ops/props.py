@@ -36,8 +36,8 @@ class HyperGSClipSettings(EncodeOptions, bpy.types.PropertyGroup):
     grid: IntVectorProperty(name="Cells", size=2, default=(1, 1), min=1,
                             description="Columns and rows of the cells the Gaussians were predicted on")
     psnr: FloatProperty(name="PSNR", default=0.0, precision=2,
-                        description="Measured at encode time against the source on frames spread over the clip, "
-                                    "one in 32 (dB)")
+                        description="Measured at encode time against the source, on a sample of frames spread "
+                                    "over the clip (dB)")
     encoder: StringProperty(name="Encoder")
     encode_seconds: FloatProperty(name="Encode Time", default=0.0, precision=1, subtype="TIME_ABSOLUTE")
     canvas_width: IntProperty(name="Width", default=0, min=0)

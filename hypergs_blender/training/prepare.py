@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -48,8 +49,6 @@ def _thumb(image: np.ndarray, n: int = 32) -> np.ndarray:
 
 def _stem_key(path: Path) -> str:
     """File name without variant suffixes (-l/-d, -dark/-light, a resolution) for grouping."""
-    import re
-
     stem = path.stem.lower().split("__")[-1]
     stem = re.sub(r"([_-](\d+x\d+|l|d|light|dark|day|night))+$", "", stem)
     return stem
@@ -146,8 +145,6 @@ def package_images(root) -> list[tuple[Path, str]]:
     """The images (.jpg/.png/.webp files, not links) of a package unpacked into `root`, each with the name it is
     copied under. A Plasma wallpaper (NAME/contents/images/WxH.ext, one file per screen size, beside a screenshot
     and dark variants) gives its largest image only, as NAME_WxH.ext; any other image keeps its own name."""
-    import re
-
     plasma, out = {}, []
     for f in sorted(Path(root).rglob("*")):
         if not f.is_file() or f.is_symlink() or f.suffix.lower() not in (".jpg", ".jpeg", ".png", ".webp"):

@@ -396,6 +396,14 @@ def psnr_sample_count(frames: int) -> int:
     return min(PSNR_SAMPLE_MOST, -(-frames // PSNR_SAMPLE_EVERY)) if frames > 0 else 0
 
 
+def psnr_frame_picks(total: int, count: int) -> list[int]:
+    """Which of `total` frames (indices 0..total-1) a PSNR check of `count` frames measures: spread evenly,
+    first and last included, no index twice."""
+    if total <= 0 or count <= 0:
+        return []
+    return np.unique(np.round(np.linspace(0, total - 1, min(count, total))).astype(int)).tolist()
+
+
 class EncodePlan:
     """The encode of a video with `settings`, known before any frame is decoded (the frames to take,
     the layout, the frame rate and the source description), then run chunk by chunk (`chunks`, or
@@ -432,7 +440,7 @@ class EncodePlan:
         clip = getattr(self.encoder, "clip_frames", 1)
         chunk_frames = -(-chunk_frames // clip) * clip
         total = len(self.indices)
-        measured = set(np.round(np.linspace(0, total - 1, min(psnr_frames, total))).astype(int).tolist())
+        measured = set(psnr_frame_picks(total, psnr_frames))
         self.psnr_values = []
         done, buffer = 0, []
 

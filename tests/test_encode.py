@@ -6,7 +6,7 @@ import pytest
 from hypergs_blender.commands.cli import main
 from hypergs_blender.encode import (DEFAULT_QUALITY, MAX_CELL, QUALITY, Cancelled, EncodePlan, EncodeSettings,
                                     FloorEncoder, encode_frames, encode_video, frames_layout, plan_layout,
-                                    psnr_sample_count)
+                                    psnr_frame_picks, psnr_sample_count)
 from hypergs_blender.errors import HyperGSError
 from hypergs_blender.io.clips import load_clip
 from hypergs_blender.io.frames import read_frames
@@ -227,6 +227,27 @@ def test_plan_measures_the_psnr_of_spread_frames(moving_video):
 def test_a_conversion_measures_one_frame_in_32_and_at_most_8(frames, sampled):
     # The PSNR check is a full render per sampled frame: its share of a conversion must not grow for short clips.
     assert psnr_sample_count(frames) == sampled
+
+
+@pytest.mark.parametrize("total,count,picks", [(0, 3, []), (12, 0, []), (12, 1, [0]), (12, 3, [0, 6, 11]),
+                                               (3, 8, [0, 1, 2]), (1800, 2, [0, 1799])])
+def test_psnr_frame_picks_spread_over_the_clip(total, count, picks):
+    assert psnr_frame_picks(total, count) == picks
+
+
+def test_encode_command_reports_the_psnr_blenders_import_would(moving_video, tmp_path, capsys):
+    out = tmp_path / "clip.npz"  # lossless: the file renders as the Gaussians measured (.hgs quantizes after)
+    main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192"])
+    assert "PSNR" not in capsys.readouterr().out  # a full render per sampled frame: asked for, not by default
+    main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192", "--psnr"])
+    printed = capsys.readouterr().out
+    frames, _, _ = read_frames(moving_video)  # 12 frames: psnr_sample_count(12) == 1, frame 0
+    video = load_clip(out)
+    expected = psnr(render_frames(video, 64, 48, [0]), frames[[0]] / np.float32(255))[0]
+    assert f"PSNR {expected:.2f} dB on 1 frame(s)" in printed
+    main(["encode", str(moving_video), "-o", str(tmp_path / "clip.hgs"), "--encoder", "floor", "--gaussians", "192",
+          "--psnr"])  # streamed: measured on the way, as the frame cache is written
+    assert f"PSNR {expected:.2f} dB on 1 frame(s)" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv,expected", [

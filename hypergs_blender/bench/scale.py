@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import EncodePlan, EncodeSettings, encode_frames, encode_video, frames_layout
+from ..encode import EncodePlan, EncodeSettings, encode_frames, encode_video, frames_layout, psnr_frame_picks
 from ..evaluate import warm_up
 from ..errors import HyperGSError
 from ..io.clips import save_clip
@@ -209,7 +209,7 @@ def _scale_worker(spec: dict) -> dict:
             seconds = time.perf_counter() - started
             quality = None
             if spec.get("psnr_frames") and spec.get("video"):
-                picks = np.unique(np.linspace(0, total - 1, spec["psnr_frames"]).round().astype(int)).tolist()
+                picks = psnr_frame_picks(total, spec["psnr_frames"])
                 values = []
                 for index, frame in iter_frames(spec["video"], picks):
                     pred = render(reader.read_frame(index)[None], cw, ch, device)[0]

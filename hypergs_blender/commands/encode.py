@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from .. import limits
-from ..encode import EncodePlan
+from ..encode import EncodePlan, psnr_sample_count
 from ..io.clips import CLIP_SUFFIXES
 from . import options
 from .options import add_encoder_arguments, add_settings_arguments, encoder_from_args, settings_from_args
@@ -25,6 +25,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--position-bits", type=int, default=None, choices=range(4, 17), metavar="{4..16}",
                    help="bits of the means (.hgs; default: steps of at most 1/4 canvas pixel and 1/100 of the "
                         "Gaussians' spacing, io/codec.clip_bits)")
+    p.add_argument("--psnr", action="store_true",
+                   help="measure the PSNR of one frame in 32 (at most 8) against the source, as Blender's Import "
+                        "does; each is a full render")
     add_encoder_arguments(p)
     p.set_defaults(func=_encode_command)
 
@@ -45,6 +48,7 @@ def _encode_command(args) -> None:
                       stop=args.stop)
     if plan.layout.note:
         print(f"hypergs: note: {plan.layout.note}", file=sys.stderr)
+    psnr_frames = psnr_sample_count(len(plan.indices)) if args.psnr else 0
     streamed = Path(args.output).suffix.lower() == ".hgs"
     if not streamed:  # the clip is held whole before it is written
         limits.check_clip_size(len(plan.indices), plan.layout.count, args.output)
@@ -65,13 +69,14 @@ def _encode_command(args) -> None:
             # the writer's default quantizer (as `bench scale` streams), at these depths
             with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, None, plan.fps,
                            plan.grid, plan.source, bits=bits) as writer:
-                for _, params in plan.chunks(progress):
+                for _, params in plan.chunks(progress, psnr_frames=psnr_frames):
                     writer.write(params)
         else:
             from ..io.clips import save_clip
-            save_clip(plan.video(progress), args.output)
+            save_clip(plan.video(progress, psnr_frames=psnr_frames), args.output)
+    quality = f", PSNR {plan.psnr:.2f} dB on {len(plan.psnr_values)} frame(s)" if psnr_frames else ""
     print(f"{args.output}: {len(plan.indices)} frames x {plan.layout.count} Gaussians "
-          f"({time.perf_counter() - started:.2f} s)")
+          f"({time.perf_counter() - started:.2f} s{quality})")
 
 
 def _render_command(args) -> None:

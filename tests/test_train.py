@@ -262,6 +262,48 @@ def test_a_checkpoint_records_its_box_and_is_not_resumed_or_exported_under_anoth
     assert int(torch.load(path, weights_only=True)["step"]) == 2 and not (tmp_path / "other").exists()
 
 
+def test_ema_averages_the_weights_of_every_step_across_resumes_and_is_what_export_writes(tmp_path, monkeypatch):
+    """--ema D keeps avg_1 = w_1, avg_t = D avg_(t-1) + (1 - D) w_t over the weights after each step (a run
+    resumed after every step, so that each step's weights are in a checkpoint); evaluated beside the weights
+    (ema_* keys); `export` writes the average, `export --trained` the weights. Turned on for a resumed run
+    that had none, it starts from that run's weights."""
+    from hypergs_blender.training.export import export_checkpoint
+    from safetensors.torch import load_file
+    monkeypatch.setitem(train.PRESETS, "conv", ConvConfig(width=8, stem=4, blocks=(1,)))
+    monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {"val": float(model.head.bias[5].detach())}))
+    decay, weights = 0.75, []
+    for step in (1, 2, 3):
+        args = training_args(tmp_path / "run", step, "conv")
+        args.ema, args.eval_every = decay, 3
+        train.run(args)
+        weights.append(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"])
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert int(state["ema"]["n_averaged"]) == 3
+    for k, (w1, w2, w3) in ((k, [w[k] for w in weights]) for k in weights[0]):
+        expected = decay * (decay * w1 + (1 - decay) * w2) + (1 - decay) * w3
+        torch.testing.assert_close(state["ema"][f"module.{k}"], expected, msg=k)
+    assert not torch.equal(weights[0]["head.bias"], weights[2]["head.bias"])  # the steps moved the weights
+    evaluated = [json.loads(line)["eval"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()
+                 if "eval" in line]
+    assert evaluated[-1] == {"val": pytest.approx(float(weights[2]["head.bias"][5])),
+                             "ema_val": pytest.approx(float(state["ema"]["module.head.bias"][5]))}
+    _, info = export_checkpoint(tmp_path / "run", tmp_path / "average")
+    assert info["ema"] == {"decay": decay, "updates": 3}
+    torch.testing.assert_close(load_file(tmp_path / "average" / "hypergs.safetensors")["head.bias"],
+                               state["ema"]["module.head.bias"])
+    _, info = export_checkpoint(tmp_path / "run", tmp_path / "trained", trained=True)
+    assert "ema" not in info
+    torch.testing.assert_close(load_file(tmp_path / "trained" / "hypergs.safetensors")["head.bias"],
+                               weights[2]["head.bias"])
+    train.run(training_args(tmp_path / "plain", 2, "conv"))  # a run without an average...
+    args = training_args(tmp_path / "plain", 3, "conv")
+    args.ema, args.given = decay, args.given | {"ema"}
+    train.run(args)  # ...given one on a resume: it starts from the weights of step 2
+    plain = torch.load(tmp_path / "plain" / "checkpoint.pt", weights_only=True)
+    assert int(plain["ema"]["n_averaged"]) == 1
+    torch.testing.assert_close(plain["ema"]["module.head.bias"], plain["model"]["head.bias"])
+
+
 def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
     args = training_args(tmp_path / "run", 4, "conv")
     args.lr_scale = {"head": 30.0}

@@ -84,6 +84,10 @@ def add_commands(subparsers) -> None:
                    help="the network's forward pass: auto, bfloat16 on CUDA and float32 on a CPU; bfloat16 on a "
                         "CPU pays where it has AMX (Intel Xeon since Sapphire Rapids); the render and the "
                         "weights stay float32")
+    p.add_argument("--ema", type=options.fraction, default=0.0, metavar="DECAY",
+                   help="also keep an exponential moving average of the weights (e.g. 0.999: about the last 1,000 "
+                        "steps); evaluated beside them (ema_* in the log), and what `export` writes; 0: none. Given "
+                        "to a resumed run without one, it starts from the run's weights")
     p.add_argument("--log-every", type=options.positive_int, default=20)
     p.add_argument("--eval-every", type=options.positive_int, default=250)
     p.add_argument("--checkpoint-every", type=options.positive_int, default=100)
@@ -104,6 +108,9 @@ def add_commands(subparsers) -> None:
                         "named only on purpose)")
     p.add_argument("--name", default=None, type=options.name,
                    help=f"file name (default: {', '.join(f'{v} for the {k} design' for k, v in DEFAULT_NAMES.items())})")
+    p.add_argument("--trained", action="store_true",
+                   help="the trained weights, where the run also keeps their moving average (train --ema; "
+                        "exported by default)")
     p.set_defaults(func=_export_command)
 
     p = subparsers.add_parser("export-onnx", help="weights (safetensors) -> <name>.onnx beside them")
@@ -134,8 +141,9 @@ def _train_command(args) -> None:
 def _export_command(args) -> None:
     from ..training.export import export_checkpoint
     args.out = args.out or str(Path(args.run) / "export")
-    name, info = export_checkpoint(args.run, args.out, args.name)
-    print(f"exported step {info['step']} to {args.out}/{name}.{{safetensors,json,onnx}}")
+    name, info = export_checkpoint(args.run, args.out, args.name, trained=args.trained)
+    weights = f" (the weights' moving average, decay {info['ema']['decay']})" if "ema" in info else ""
+    print(f"exported step {info['step']}{weights} to {args.out}/{name}.{{safetensors,json,onnx}}")
 
 
 def _export_onnx_command(args) -> None:

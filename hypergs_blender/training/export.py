@@ -140,9 +140,10 @@ def recorded_info(weights) -> dict | None:
     return json.loads(card.read_text()).get("info") if card.is_file() else None
 
 
-def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
+def export_checkpoint(run, out, name: str | None = None, trained: bool = False) -> tuple[str, dict]:
     """Write the weights of `run`/checkpoint.pt into `out` as `name` (default: its design's name,
-    network.DEFAULT_NAMES); returns the name and the training info recorded."""
+    network.DEFAULT_NAMES): their moving average where the run keeps one (train --ema), unless `trained`;
+    returns the name and the training info recorded."""
 
     from ..model import build_model
     checkpoint_path = Path(run) / "checkpoint.pt"
@@ -150,8 +151,11 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
         raise HyperGSError(f"{checkpoint_path}: no checkpoint")
     state = load_checkpoint(checkpoint_path)
     model = build_model(json.loads(state["config"]))
-    model.load_state_dict(state["model"])
     args = json.loads(state["args"])
+    average = state.get("ema") if not trained else None
+    # AveragedModel's state: the network's tensors under "module.", and how many updates it has averaged
+    model.load_state_dict({k.removeprefix("module."): v for k, v in average.items() if k.startswith("module.")}
+                          if average else state["model"])
     keys = ("data", "batch", "size", "lr", "min_lr_ratio", "warmup", "clip", "steps", "seed", "preset", "config", "loss",
             "input_noise", "flat_weight")
     if model.cfg.arch == "transformer":
@@ -165,6 +169,8 @@ def export_checkpoint(run, out, name: str | None = None) -> tuple[str, dict]:
         train_args["regularizer"] = {k: round(float(v), 4) for k, v in state["regularizer"].items()}
     info = dict(step=int(state["step"]), cpu_hours=round(float(state["cpu_seconds"]) / 3600, 3),
                 wall_hours=round(float(state["wall_seconds"]) / 3600, 3), train_args=train_args)
+    if average:
+        info["ema"] = dict(decay=args.get("ema"), updates=int(average["n_averaged"]))
     name = name or DEFAULT_NAMES[model.cfg.arch]
     save_weights(model, out, name, info)
     export_onnx(model, Path(out) / f"{name}.onnx")

@@ -32,3 +32,15 @@ def test_earlier_csv_round_trips_and_a_new_run_continues_its_chain(tmp_path, mon
     assert rows[:len(both.splitlines())] == both.splitlines()
     assert rows[-2:] == ["third,100,0.350,0.100,val_n1024,31.0", "third,100,0.350,0.100,val_n4096,37.0"]
     assert (tmp_path / "all.png").stat().st_size > 0
+
+
+def test_a_metric_that_starts_on_the_way_is_plotted_from_there(tmp_path, monkeypatch):
+    # train --ema given to a resumed run: its evaluations gain ema_* keys from that step on
+    write_log(tmp_path / "run", [(500, 360.0, 29.0), (1000, 720.0, 29.5)])
+    log = tmp_path / "run" / "log.jsonl"
+    log.write_text(log.read_text() + json.dumps(dict(step=1500, wall=1080.0, cpu=1080.0, eval={
+        "val_n1024": 29.7, "val_n4096": 35.7, "ema_val_n1024": 29.8})) + "\n")
+    plot(monkeypatch, tmp_path / "run", "--out", tmp_path / "curve.png")
+    rows = (tmp_path / "curve.csv").read_text().splitlines()
+    assert [r for r in rows if ",ema_" in r] == ["run,1500,0.300,0.300,ema_val_n1024,29.8"]
+    assert sum(",val_n1024," in r for r in rows) == 3

@@ -58,11 +58,13 @@ def main() -> None:
             evals = [dict(r, cpu=r["cpu"] + offset) for r in evals]
             steps = [dict(r, cpu=r["cpu"] + offset) for r in steps]
             mem.plot([r["cpu"] / 3600 for r in steps], [r["rss_mb"] for r in steps], lw=1, label=name)
-        for metric in sorted(evals[0]["eval"]) if evals else []:
-            points = [r for r in evals if metric in r["eval"]]  # a CSV's run may lack a metric at some steps
+        # every metric of any evaluation: a run may add one on the way (train --ema given at a resume: ema_*)
+        for metric in sorted({m for r in evals for m in r["eval"]}):
+            points = [r for r in evals if metric in r["eval"]]
+            first = metric not in colours
             colour = colours.setdefault(metric, f"C{len(colours)}")
             ax.plot([r["cpu"] / 3600 for r in points], [r["eval"][metric] for r in points], marker="o", ms=3,
-                    color=colour, label=(metric if index == 0 else "_nolegend_") if args.chain else f"{name}: {metric}")
+                    color=colour, label=(metric if first else "_nolegend_") if args.chain else f"{name}: {metric}")
             rows += [f"{name},{r['step']},{r['cpu'] / 3600:.3f},{r['wall'] / 3600:.3f},{metric},{r['eval'][metric]}"
                      for r in points]
         if args.chain and evals:

@@ -53,7 +53,7 @@ def main() -> None:
     offset = 0.0  # CPU seconds before this run (--chain; the CSV's runs hold theirs)
     colours: dict[str, str] = {}  # one colour per metric across runs
     runs = [(name, evals, None) for name, evals in earlier] + [(run.name, *read_log(run)) for run in args.runs]
-    for index, (name, evals, steps) in enumerate(runs):
+    for name, evals, steps in runs:
         if steps is not None:  # a log: its times from the chain's offset
             evals = [dict(r, cpu=r["cpu"] + offset) for r in evals]
             steps = [dict(r, cpu=r["cpu"] + offset) for r in steps]

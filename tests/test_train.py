@@ -298,7 +298,7 @@ def test_ema_averages_the_weights_of_every_step_across_resumes_and_is_what_expor
     train.run(training_args(tmp_path / "plain", 2, "conv"))  # a run without an average...
     args = training_args(tmp_path / "plain", 3, "conv")
     args.ema, args.given = decay, args.given | {"ema"}
-    train.run(args)  # ...given one on a resume: it starts from the weights of step 2
+    train.run(args)  # ...given one on a resume: its first update copies the weights (step 3's), n_averaged 1
     plain = torch.load(tmp_path / "plain" / "checkpoint.pt", weights_only=True)
     assert int(plain["ema"]["n_averaged"]) == 1
     torch.testing.assert_close(plain["ema"]["module.head.bias"], plain["model"]["head.bias"])

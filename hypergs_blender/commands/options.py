@@ -62,12 +62,14 @@ class Integer(ArgType):
 
 
 class Real(ArgType):
-    """A finite number above `low` (or equal to it when `inclusive`), at most `high`."""
+    """A finite number above `low` (or equal to it when `inclusive`), at most `high` (below it when not
+    `high_inclusive`)."""
 
-    def __init__(self, low: float, inclusive: bool = False, high: float = math.inf):
-        self.low, self.inclusive, self.high = low, inclusive, high
+    def __init__(self, low: float, inclusive: bool = False, high: float = math.inf, high_inclusive: bool = True):
+        self.low, self.inclusive, self.high, self.high_inclusive = low, inclusive, high, high_inclusive
         below = low - 1 if inclusive else low
-        self.refused = ("abc", "", "nan", "inf", repr(below)) + ((repr(high * 2 + 1),) if high < math.inf else ())
+        above = () if high == math.inf else (repr(high * 2 + 1),) if high_inclusive else (repr(high),)
+        self.refused = ("abc", "", "nan", "inf", repr(below)) + above
 
     def __call__(self, text: str) -> float:
         try:
@@ -79,8 +81,9 @@ class Real(ArgType):
         if value < self.low or (value == self.low and not self.inclusive):
             raise argparse.ArgumentTypeError(f"must be {'at least' if self.inclusive else 'above'} {self.low:g}, "
                                              f"got {value:g}")
-        if value > self.high:
-            raise argparse.ArgumentTypeError(f"must be at most {self.high:g}, got {value:g}")
+        if value > self.high or (value == self.high and not self.high_inclusive):
+            raise argparse.ArgumentTypeError(f"must be {'at most' if self.high_inclusive else 'below'} {self.high:g}, "
+                                             f"got {value:g}")
         return value
 
 
@@ -329,6 +332,7 @@ image_side = Integer(1, limit=limits.SIDE)
 positive_float = Real(0.0)
 non_negative_float = Real(0.0, inclusive=True)
 fraction = Real(0.0, inclusive=True, high=1.0)
+decay = Real(0.0, inclusive=True, high=1.0, high_inclusive=False)  # 1 would never move
 text = Text()
 config_item = ConfigItem()
 schedule_steps = ScheduleSteps()

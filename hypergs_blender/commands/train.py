@@ -84,7 +84,7 @@ def add_commands(subparsers) -> None:
                    help="the network's forward pass: auto, bfloat16 on CUDA and float32 on a CPU; bfloat16 on a "
                         "CPU pays where it has AMX (Intel Xeon since Sapphire Rapids); the render and the "
                         "weights stay float32")
-    p.add_argument("--ema", type=options.fraction, default=0.0, metavar="DECAY",
+    p.add_argument("--ema", type=options.decay, default=0.0, metavar="DECAY",
                    help="also keep an exponential moving average of the weights (e.g. 0.999: about the last 1,000 "
                         "steps); evaluated beside them (ema_* in the log), and what `export` writes; 0: none. Given "
                         "to a resumed run without one, it starts from the run's weights")

@@ -222,7 +222,7 @@ def test_a_resume_keeps_the_runs_options_but_those_given_again(tmp_path, monkeyp
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     run = ["train", "--out", str(tmp_path / "run")]
     main(run + ["--data", "procedural:1", "--steps", "2", "--batch", "1", "--size", "32", "--warmup", "1",
-                "--lr", "3e-4", "--loss", "psnr", "--seed", "5", "--threads", "1"])
+                "--lr", "3e-4", "--loss", "psnr", "--seed", "5", "--threads", "1", "--precision", "bfloat16"])
 
     def recorded():
         state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
@@ -231,7 +231,9 @@ def test_a_resume_keeps_the_runs_options_but_those_given_again(tmp_path, monkeyp
     step, args = recorded()
     assert step == 3 and (args["lr"], args["loss"], args["seed"], args["size"], args["data"]) == (
         3e-4, "psnr", 5, 32, "procedural:1")
-    assert "the run's options but --steps 3 (was 2)\n" in capsys.readouterr().out
+    # the sitting's speed options are its own, and said where they differ from the last sitting's
+    assert ("the run's options but --steps 3 (was 2), --precision auto (the last sitting's: bfloat16), --threads unset "
+            "(the last sitting's: 1)\n") in capsys.readouterr().out
     main(run + ["--steps", "4", "--lr", "1e-4", "--loss", "psnr"])
     step, args = recorded()
     assert step == 4 and args["lr"] == 1e-4 and args["loss"] == "psnr"

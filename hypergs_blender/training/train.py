@@ -64,6 +64,10 @@ FLAT_WINDOW = 9
 # Options of this sitting (the machine, how long), not of the run: a resume never takes them from the checkpoint.
 SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "precision", "profile", "given",
                              "command"})
+# The sitting's own options that set how fast it runs: a resume does not keep them (another machine, another
+# device) but says where they differ from the last sitting's, since a silent change costs hours (a run started
+# with --precision bfloat16 on a CPU and resumed without it trains in float32).
+SITTING_SPEED_OPTIONS = ("precision", "threads", "loader_threads")
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
 FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale", "train_only")
 # --steps auto: the schedule's length, set at the end of the warm-up (whose learning rates do not depend
@@ -307,12 +311,16 @@ def resume_options(args, recorded: dict) -> list[str]:
     """A resumed run keeps the options it started with (`recorded`, the checkpoint's), but for the sitting's
     own (SITTING_OPTIONS) and those this command line gives (`args.given`, commands/train.py; a namespace
     without it gives all): `--steps 4000` alone continues the run's schedule, data, loss and learning rate.
-    Sets them on args; returns the given ones that differ from the record ("--lr 0.0005 (was 0.0003)").
-    Raises HyperGSError where a given option would change the network (FIXED_OPTIONS)."""
+    Sets them on args; returns the given ones that differ from the record ("--lr 0.0005 (was 0.0003)"), and the
+    SITTING_SPEED_OPTIONS left to their defaults that differ from the last sitting's ("--precision auto (the last
+    sitting's: bfloat16)"). Raises HyperGSError where a given option would change the network (FIXED_OPTIONS)."""
     given = getattr(args, "given", None)
     given = set(vars(args)) if given is None else set(given)
     changed = []
     for key, was in recorded.items():
+        if key in SITTING_SPEED_OPTIONS and key not in given and hasattr(args, key) and getattr(args, key) != was:
+            now = getattr(args, key)
+            changed.append(f"--{key.replace('_', '-')} {'unset' if now is None else now} (the last sitting's: {was})")
         if key in SITTING_OPTIONS or not hasattr(args, key):
             continue
         if key not in given:

@@ -318,18 +318,19 @@ def resume_options(args, recorded: dict) -> list[str]:
     given = set(vars(args)) if given is None else set(given)
     changed = []
     for key, was in recorded.items():
-        if key in SITTING_SPEED_OPTIONS and key not in given and hasattr(args, key) and getattr(args, key) != was:
-            now = getattr(args, key)
-            changed.append(f"--{key.replace('_', '-')} {'unset' if now is None else now} (the last sitting's: {was})")
-        if key in SITTING_OPTIONS or not hasattr(args, key):
+        if not hasattr(args, key):
+            continue
+        flag, now = "--" + key.replace("_", "-"), getattr(args, key)
+        if key in SITTING_OPTIONS:
+            if key in SITTING_SPEED_OPTIONS and key not in given and now != was:
+                changed.append(f"{flag} {'unset' if now is None else now} (the last sitting's: {was})")
             continue
         if key not in given:
             setattr(args, key, was)
             continue
-        now = json.loads(json.dumps(_plain({key: getattr(args, key)})))[key]
+        now = json.loads(json.dumps(_plain({key: now})))[key]
         if now == was or (key in ("config", "lr_scale", "train_only") and not now and not was):
             continue
-        flag = "--" + key.replace("_", "-")
         if key in FIXED_OPTIONS:
             raise HyperGSError(f"{flag} {now}: the run in {args.out} was started with {flag} {was}, and a run keeps "
                                f"its network; start a new run (another --out), e.g. with --init-from its export")

@@ -5,8 +5,8 @@ parameters (means in pixels, log scales, rotation, colours), each group with its
 (`StepSizes`); the means' step is a fraction of the cell, the mean spacing of the Gaussians, so the
 same settings mean the same at any resolution and count. `fit` from scratch (FIT_STEPS) decays its
 step sizes over its length (cosine); `refine_params` (REFINE_STEPS, small: the prediction is already
-close) ramps them up over its first REFINE_WARMUP steps and then keeps them constant, so refining for
-K steps passes through the same states as refining for fewer at the same step sizes.
+close) ramps them up over its first REFINE_WARMUP steps, keeps them constant, and decays them over its
+last REFINE_DECAY share of the steps.
 Refinement starts from given parameters; its first and cheapest step is the least-squares colours for
 the given geometry: with opacity 1 the render is linear in the colours, I = A c, so
 c = argmin |A c - y|^2 is solved by conjugate gradients on the normal equations, each iteration one
@@ -33,14 +33,22 @@ class StepSizes:
 
 
 FIT_STEPS = StepSizes(mean_cells=0.25, log_scale=0.02, rotation=0.02, colour=0.02)  # from random values
-REFINE_STEPS = StepSizes(mean_cells=0.014, log_scale=0.01, rotation=0.02, colour=0.002)  # from a prediction
+REFINE_STEPS = StepSizes(mean_cells=0.021, log_scale=0.015, rotation=0.03, colour=0.003)  # from a prediction
 REFINE_SCALE_MAX = 4.0
 # Adam's first steps move every parameter by about its full step size whatever its gradient (the moment
 # estimates are one sample), which throws a good prediction off; a linear ramp lets them settle first.
 # Measured at refine 50 (N = 1000, 256^2; dev / held-out clips): +0.55 / +0.47 dB over no ramp at 5
 # steps, +0.67 / +0.57 at 10, +0.59 / +0.50 at 20; with the ramp, the means' step x0.7 and the scales'
-# and rotation's x2 (REFINE_STEPS above) add +0.4 / +0.3.
+# and rotation's x2 add +0.4 / +0.3.
 REFINE_WARMUP = 10
+# Session 27, the bundled network's predictions (256^2, 8 frames; dev / held-out clips): the step sizes
+# above at 1.5x session 10's, ending in a half cosine over the last fifth of the steps, gained on every row:
+# N = 1000 refine 10 +0.07 / +0.05 dB, 30 +0.11 / +0.08, 50 +0.04 / +0.10, 100 +0.02 / +0.14; N = 3000
+# refine 50 +0.01 / +0.10; 480^2 crops at 14,400 refine 30 +0.10 / +0.06. The decay alone lost on the dev
+# clips (-0.02 to -0.09 at N = 1000); 2x gained up to 0.1 dB more at 256^2 but raised the crops' flat
+# ripple with refine 50 from 1.28x to 1.40x the source's (1.5x: 1.23x) and lost up to 0.14 dB on the
+# smoothest crops.
+REFINE_DECAY = 0.2
 # Fitting from scratch ramps up too when it starts from the grid (a warm start; 256^2, N = 1000, dev /
 # held-out: +0.25 / +2.1 dB at 30 steps, +0.5 / +0.6 at 100, +0.8 / +0.5 at 300), not from random values
 # (-0.6 / -1.3 dB at 100).
@@ -48,9 +56,10 @@ FIT_WARMUP = {"random": 0, "grid": REFINE_WARMUP}
 
 
 def refine_steps(steps: int) -> StepSizes:
-    """REFINE_STEPS for a refinement of `steps` steps: a longer run affords larger steps. Measured (after
-    the network, dev 256^2 at N = 900 and a 480^2 crop at N = 14,400): the best scale of REFINE_STEPS was
-    1 for 10 steps, 2-3 for 30, 3-4 for 50 and >= 4 for 100 (+0.5 to +1 dB over scale 1 at 50-100)."""
+    """REFINE_STEPS for a refinement of `steps` steps: a longer run affords larger steps. Measured (session
+    10, after the network, dev 256^2 at N = 900 and a 480^2 crop at N = 14,400, with session 10's half-size
+    REFINE_STEPS and no decay): the best scale was 1 for 10 steps, 2-3 for 30, 3-4 for 50 and >= 4 for 100
+    (+0.5 to +1 dB over scale 1 at 50-100)."""
     scale = min(REFINE_SCALE_MAX, max(1.0, steps / 12))
     r = REFINE_STEPS
     return StepSizes(r.mean_cells * scale, r.log_scale * scale, r.rotation * scale, r.colour * scale)
@@ -117,26 +126,30 @@ def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations
     return torch.cat([params[..., :5].detach(), c], -1)
 
 
-def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes = FIT_STEPS, schedule: str = "cosine",
+def step_size_factor(step: int, iters: int, warmup: int = 0, decay: float = 1.0) -> float:
+    """The share of its own step size each group takes at `step` of `iters`: a linear ramp up over the first
+    `warmup` steps, then 1, then over the last `decay` share of the steps a half cosine down to 5 % (decay
+    1: over the whole run; 0: constant step sizes)."""
+    ramp = min(1.0, (step + 1) / warmup) if warmup else 1.0
+    start = iters - round(decay * iters)
+    if step < start:
+        return ramp
+    done = min(step - start, iters - start) / max(1, iters - start)
+    return ramp * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * done)))
+
+
+def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes = FIT_STEPS, decay: float = 1.0,
         warmup: int = 0) -> torch.Tensor:
     """Optimise params [T, N, 8] (canvas = the target's W x H) to target [T, H, W, 3] for `iters` Adam
-    steps. schedule: "cosine" (decays to 5 % over `iters`) or "constant"; warmup: the step sizes ramp
-    up linearly over this many first steps."""
-    if schedule not in ("cosine", "constant"):
-        raise ValueError(f"fit: unknown schedule {schedule!r}")
+    steps, the step sizes scaled by step_size_factor(step, iters, warmup, decay)."""
+    if not 0 <= decay <= 1:
+        raise ValueError(f"fit: decay must be in [0, 1], got {decay}")
     h, w = target.shape[-3:-1]
     leaves = [leaf.requires_grad_(True) for leaf in _pack(init.detach(), w, h)]
     cell = math.sqrt(w * h / max(1, init.shape[-2]))
     sizes = (steps.mean_cells * cell, steps.log_scale, steps.rotation, steps.colour)
     optimizer = torch.optim.Adam([{"params": [leaf], "lr": lr} for leaf, lr in zip(leaves, sizes)])
-
-    def factor(step):  # of each group's own step size
-        ramp = min(1.0, (step + 1) / warmup) if warmup else 1.0
-        if schedule == "constant":
-            return ramp
-        return ramp * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, iters) / max(1, iters))))
-
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: step_size_factor(step, iters, warmup, decay))
     for step in range(iters):
         loss = torch.mean((_render(_unpack(leaves, w, h), w, h) - target) ** 2)
         optimizer.zero_grad(set_to_none=True)
@@ -149,11 +162,11 @@ def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes =
 def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, device="cpu") -> np.ndarray:
     """Warm-started refinement of [T, N, 8] params on a W x H canvas against uint8 frames [T, H, W, 3]:
     least-squares colours (step 1), then `steps - 1` Adam steps from there (refine_steps(steps), ramped up
-    over REFINE_WARMUP steps, then constant)."""
+    over REFINE_WARMUP steps, constant, then decayed over the last REFINE_DECAY of them)."""
     if steps < 1:
         raise ValueError(f"refine steps must be >= 1, got {steps}")
     target = torch.from_numpy(frames).to(device).float() / 255
     refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)).to(device), target)
     if steps > 1:
-        refined = fit(target, refined, steps - 1, refine_steps(steps), schedule="constant", warmup=REFINE_WARMUP)
+        refined = fit(target, refined, steps - 1, refine_steps(steps), decay=REFINE_DECAY, warmup=REFINE_WARMUP)
     return refined.cpu().numpy()

@@ -120,12 +120,35 @@ def test_refine_ramps_its_step_sizes_up_over_its_warmup(tiny_video):
     step = REFINE_STEPS.mean_cells * math.sqrt(32 * 32 / 16) / 16  # pixels -> the canvas' [-1, 1] (32 px wide)
 
     def largest_move(iters, warmup):
-        moved = fit(target, start, iters, REFINE_STEPS, schedule="constant", warmup=warmup)
+        moved = fit(target, start, iters, REFINE_STEPS, decay=0, warmup=warmup)
         return float((moved[..., :2] - start[..., :2]).abs().max())
 
     assert largest_move(1, 0) == pytest.approx(step, rel=0.01)
     assert largest_move(1, REFINE_WARMUP) == pytest.approx(step / REFINE_WARMUP, rel=0.01)
     assert largest_move(REFINE_WARMUP + 1, REFINE_WARMUP) > 2 * largest_move(REFINE_WARMUP + 1, REFINE_WARMUP * 4)
+
+
+def test_step_size_factor_ramps_holds_and_decays_over_its_tail():
+    from hypergs_blender.refine import step_size_factor
+
+    factors = [step_size_factor(step, 20, warmup=4, decay=0.25) for step in range(20)]
+    assert factors[:4] == pytest.approx([0.25, 0.5, 0.75, 1.0])
+    assert factors[4:15] == pytest.approx([1.0] * 11)
+    assert factors[15] == pytest.approx(1.0)
+    assert factors[19] == pytest.approx(0.05 + 0.95 * 0.5 * (1 + math.cos(0.8 * math.pi)))
+    assert all(later < earlier for earlier, later in zip(factors[15:], factors[16:]))
+    # decay 1 is the whole run's cosine (a fit from scratch), decay 0 constant step sizes
+    assert step_size_factor(0, 10) == 1.0 and step_size_factor(5, 10) == pytest.approx(0.525)
+    assert [step_size_factor(step, 10, decay=0) for step in range(10)] == [1.0] * 10
+
+
+def test_fit_refuses_a_decay_outside_0_1():
+    import torch
+
+    from hypergs_blender.refine import fit
+
+    with pytest.raises(ValueError, match="decay must be in"):
+        fit(torch.zeros(1, 8, 8, 3), torch.zeros(1, 4, 8), 2, decay=1.5)
 
 
 def test_refine_ladder_matches_refine_params(tiny_video):

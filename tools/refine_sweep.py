@@ -1,16 +1,19 @@
-"""Experiment (issue 18, session 10): refinement's step sizes and warm-up, swept on the network's
-predictions. Each variant is refine.refine_params with its Adam steps changed: the step sizes of
-refine.refine_steps(K) times per-group factors, and a linear warm-up of W steps (refine.REFINE_WARMUP
-is the product's). Prints the mean PSNR over the dev clips and over the held-out pans (8 frames from
-frame 0 of each, 256^2 or a 480^2 centre crop).
+"""Experiment (issue 18, sessions 10 and 27): refinement's step sizes, warm-up and decay, swept on the
+network's predictions. Each variant is refine.refine_params with its Adam steps changed: the step sizes
+of refine.refine_steps(K) times per-group factors, a linear warm-up of W steps and a decay over the last
+D share of the steps (refine.REFINE_WARMUP and refine.REFINE_DECAY are the product's). Prints the mean
+PSNR over the dev clips and over the held-out pans (8 frames from frame 0 of each, 256^2 or a 480^2
+centre crop).
 
     OMP_NUM_THREADS=1 .venv/bin/python tools/refine_sweep.py --steps 50 --gaussians 1000 \\
         --dev ../shared/videos/*.mp4 --held runs/heldout720/*.mp4 \\
-        --variant warmup=0,mean=1.43,scale=0.5,rotation=0.5 --variant warmup=10
+        --variant warmup=0,decay=0,mean=0.952,scale=0.333,rotation=0.333,colour=0.667 \\
+        --variant warmup=10,decay=0,mean=0.667,scale=0.667,rotation=0.667,colour=0.667 --variant warmup=10,decay=0.2
 
 (the first variant is session 9's refinement: no warm-up, means 0.02 cells, log-scales 0.005, rotation
-0.01; the second is today's.) Variant fields: warmup (steps), mean / scale / rotation / colour (factors
-of refine_steps(K)'s mean_cells / log_scale / rotation / colour).
+0.01; the second session 10's; the third today's.) Variant fields: warmup (steps), decay (a share of
+the steps), mean / scale / rotation / colour (factors of refine_steps(K)'s mean_cells / log_scale /
+rotation / colour).
 """
 from __future__ import annotations
 
@@ -29,11 +32,11 @@ FIELDS = {"mean": "mean_cells", "scale": "log_scale", "rotation": "rotation", "c
 
 
 def parse_variant(text: str) -> dict:
-    variant = {"warmup": 0}
+    variant = {"warmup": 0, "decay": 0.0}
     for item in filter(None, text.split(",")):
         key, _, value = item.partition("=")
-        if key != "warmup" and key not in FIELDS:
-            raise SystemExit(f"unknown variant field {key!r} (warmup, {', '.join(FIELDS)})")
+        if key not in variant and key not in FIELDS:
+            raise SystemExit(f"unknown variant field {key!r} (warmup, decay, {', '.join(FIELDS)})")
         variant[key] = int(value) if key == "warmup" else float(value)
     return variant
 
@@ -44,7 +47,7 @@ def refine_variant(params: np.ndarray, frames: np.ndarray, steps: int, variant: 
     refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target)
     base = refine_steps(steps)
     sizes = StepSizes(**{name: getattr(base, name) * variant.get(key, 1.0) for key, name in FIELDS.items()})
-    return fit(target, refined, steps - 1, sizes, schedule="constant", warmup=variant["warmup"]).numpy()
+    return fit(target, refined, steps - 1, sizes, decay=variant["decay"], warmup=variant["warmup"]).numpy()
 
 
 def main() -> None:

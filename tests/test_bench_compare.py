@@ -151,6 +151,23 @@ def test_fit_refuses_a_decay_outside_0_1():
         fit(torch.zeros(1, 8, 8, 3), torch.zeros(1, 4, 8), 2, decay=1.5)
 
 
+def test_a_frame_refines_the_same_alone_or_in_a_batch():
+    """Each frame is its own problem: its steps must not depend on the frames beside it, also where its
+    gradients are as small as Adam's eps (a start already within 1e-4 of the target)."""
+    import torch
+
+    from hypergs_blender.refine import REFINE_STEPS, fit, random_init
+    from hypergs_blender.render import render_torch
+
+    start = torch.from_numpy(random_init(4, 16, 32, 32, seed=3))
+    noise = torch.randn(4, 32, 32, 3, generator=torch.Generator().manual_seed(0))
+    target = render_torch(start, 32, 32, 32, 32) + 1e-4 * noise
+    together = fit(target, start, 3, REFINE_STEPS, decay=0)
+    alone = torch.cat([fit(target[i:i + 1], start[i:i + 1], 3, REFINE_STEPS, decay=0) for i in range(4)])
+    assert torch.allclose(together, alone, rtol=0, atol=1e-6)
+    assert not torch.allclose(together, start, rtol=0, atol=1e-6)  # and the steps did move it
+
+
 def test_refine_ladder_matches_refine_params(tiny_video):
     """The bench times every K as its own run; each K must equal refine_params(K)."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)

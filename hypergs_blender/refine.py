@@ -51,10 +51,10 @@ REFINE_WARMUP = 10
 REFINE_DECAY = 0.2
 # Each frame is its own problem: the loss sums the frames' mean squared errors, so a frame's gradients, and
 # Adam's steps, do not depend on how many frames share the batch (an encode refines chunks of 16, an eval
-# 8, vs-fit 2-4). Adam's eps then meets one frame's gradients, which are 8x those of the mean over 8 frames
-# that every step size here was tuned with; 8x torch's default eps keeps those results. It matters where
-# the gradients are small (48-53 dB 480^2 crops, 4-px cells): there, before, a batch of 2 frames took
-# larger steps than one of 8, and 9 Adam steps took one smooth frame 0.5 dB below the colours they started from.
+# 8, vs-fit 2-4). Adam's eps then meets one frame's gradients, 8x those of the mean over the 8 frames that
+# refinement's step sizes were tuned on; 8x torch's default eps keeps those results. It matters where the
+# gradients are small (48-53 dB 480^2 crops, 4-px cells): there, before, a batch of 2 frames took larger
+# steps than one of 8, and 9 Adam steps took a smooth frame 0.5 dB below the colours they started from.
 ADAM_EPS = 8e-8
 # Fitting from scratch ramps up too when it starts from the grid (a warm start; 256^2, N = 1000, dev /
 # held-out: +0.25 / +2.1 dB at 30 steps, +0.5 / +0.6 at 100, +0.8 / +0.5 at 300), not from random values

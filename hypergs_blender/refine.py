@@ -159,10 +159,14 @@ def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes =
     sizes = (steps.mean_cells * cell, steps.log_scale, steps.rotation, steps.colour)
     optimizer = torch.optim.Adam([{"params": [leaf], "lr": lr} for leaf, lr in zip(leaves, sizes)], eps=ADAM_EPS)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: step_size_factor(step, iters, warmup, decay))
+
+    def frame_errors(params):
+        return ((_render(params, w, h) - target) ** 2).mean((-3, -2, -1))
+
     best = None
     for step in range(iters):
         params = _unpack(leaves, w, h)
-        errors = ((_render(params, w, h) - target) ** 2).mean((-3, -2, -1))  # per frame
+        errors = frame_errors(params)
         best = _keep_better(best, params.detach(), errors.detach())
         optimizer.zero_grad(set_to_none=True)
         errors.sum().backward()  # each frame's own error (ADAM_EPS)
@@ -170,8 +174,7 @@ def fit(target: torch.Tensor, init: torch.Tensor, iters: int, steps: StepSizes =
         scheduler.step()
     params = _unpack([leaf.detach() for leaf in leaves], w, h)
     with torch.no_grad():
-        errors = ((_render(params, w, h) - target) ** 2).mean((-3, -2, -1))
-    return _keep_better(best, params, errors)[0]
+        return _keep_better(best, params, frame_errors(params))[0]
 
 
 def _keep_better(best: tuple | None, params: torch.Tensor, errors: torch.Tensor) -> tuple:

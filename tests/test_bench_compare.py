@@ -316,7 +316,7 @@ def test_bench_scale_report(tmp_path):
     assert report["encode_video"]["frames"] == 24 and report["encode_video"]["growth_second_half_mb"] is not None
     assert (r["frames"], r["of"], r["width"], r["height"]) == (3, 24, 240, 144)
     assert r["quality"]["psnr_at_source_size"] > 10
-    assert "| video -> .hgs streamed (HgsWriter) | 24 |" in report["table"] and "240x144" in report["table"]
+    assert "| video -> .hgs streamed (EncodePlan.write_hgs) | 24 |" in report["table"] and "240x144" in report["table"]
 
 
 # ---- command line and plots ------------------------------------------------------------------------------

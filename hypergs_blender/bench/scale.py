@@ -19,7 +19,7 @@ from ..evaluate import warm_up
 from ..errors import HyperGSError
 from ..io.clips import save_clip
 from ..io.frames import iter_frames, probe
-from ..io.hgs import HgsReader, HgsWriter
+from ..io.hgs import HgsReader
 from ..network import resolve_encoder
 from .common import machine_report, psnr_of, render, resolve_device, say
 from .vs_fit import refine_ladder
@@ -120,28 +120,26 @@ def _reset_peak_rss() -> bool:
 def stream_encode(path, out_path, encoder, gaussians: int | None = None, cell: float | None = None,
                   size: int | None = None, chunk_frames: int = 16, refine: int = 0, bits: int = 8,
                   hold_frames: bool = False, on_chunk=None) -> dict:
-    """Video -> .hgs without ever holding the clip: EncodePlan.chunks (what `hypergs encode` runs)
-    into an HgsWriter with the default quantizer ranges (values outside are clipped and counted).
-    on_chunk(frames_done) after each chunk. hold_frames keeps every decoded frame (a control that must
-    grow memory). Seconds: decoding + encoding (+ refine), and writing."""
+    """Video -> .hgs without ever holding the clip, as `hypergs encode` streams it (EncodePlan.write_hgs: the
+    Gaussians into a float16 file, then quantized with ranges fitted to the whole clip). on_chunk(frames_done)
+    after each chunk. hold_frames keeps every decoded frame (a control that must grow memory). Seconds:
+    decoding and encoding (+ refine) with the float16 write, then the passes that fit the ranges and quantize."""
     plan = EncodePlan(path, encoder, EncodeSettings(gaussians, cell, refine), size)
-    w, h = plan.width, plan.height
-    held, seconds = [], {"decode_encode": 0.0, "write": 0.0}
-    with HgsWriter(out_path, w, h, plan.layout.count, None, plan.fps, plan.grid, {"path": str(path)},
-                   bits=bits) as writer:  # the default quantizer, as `hypergs encode` streams
-        started = time.perf_counter()
-        for frames, params in plan.chunks(chunk_frames=chunk_frames):
-            seconds["decode_encode"] += time.perf_counter() - started
-            if hold_frames:
-                held.append(frames)
-            started = time.perf_counter()
-            writer.write(params)
-            seconds["write"] += time.perf_counter() - started
-            if on_chunk is not None:
-                on_chunk(writer.num_frames)
-            started = time.perf_counter()
-        frames_written, clipped = writer.num_frames, writer.clipped
-    return {"frames": frames_written, "width": w, "height": h, "gaussians": plan.layout.count, "clipped_values": clipped,
+    held, done, streamed = [], 0, None
+
+    def chunk(frames, params):
+        nonlocal done, streamed
+        done += len(frames)
+        if hold_frames:
+            held.append(frames)
+        if on_chunk is not None:
+            on_chunk(done)
+        streamed = time.perf_counter()
+
+    started = time.perf_counter()
+    plan.write_hgs(out_path, bits, chunk_frames=chunk_frames, on_chunk=chunk)
+    seconds = {"decode_encode": streamed - started, "quantize": time.perf_counter() - streamed}
+    return {"frames": done, "width": plan.width, "height": plan.height, "gaussians": plan.layout.count,
             "seconds": seconds, "held_frames": sum(len(f) for f in held)}
 
 
@@ -297,8 +295,8 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
             ev.update(memory_growth(ev))
             report["encode_video"] = ev
         report["notes"].append(
-            "encode: video -> .hgs streamed (HgsWriter, default quantizer ranges); `hypergs encode` (encode_video, "
-            f"then save_clip) also holds the whole clip's float32 params, {enc['in_memory_params_mb']} MB here.")
+            "encode: video -> .hgs streamed (EncodePlan.write_hgs, as `hypergs encode` writes .hgs); to .npz or USD it "
+            f"(encode_video, then save_clip) holds the whole clip's float32 params, {enc['in_memory_params_mb']} MB here.")
         say(progress, f"rendering {render_frames or 'all'} frames at {render_width}x{render_height}")
         report["render"] = run_scale_job({"job": "render", "clip": str(clip), "width": render_width,
                                           "height": render_height, "frames": render_frames, "video": str(video),
@@ -318,7 +316,7 @@ def format_scale_table(report: dict) -> str:
              "process after start-up (MiB): the peak when half the frames were done, and at the end.", "",
              "| path | frames | encode fps | RSS before | peak at half | peak at end | .hgs bpp |",
              "| --- | --- | --- | --- | --- | --- | --- |",
-             f"| video -> .hgs streamed (HgsWriter) | {e['frames']} | {e['fps']:.3g} | {e['rss_baseline_mb']:.0f} | "
+             f"| video -> .hgs streamed (EncodePlan.write_hgs) | {e['frames']} | {e['fps']:.3g} | {e['rss_baseline_mb']:.0f} | "
              f"{e['peak_rss_at_half_mb']:.0f} | {e['peak_rss_mb']:.0f} | {e['bpp']:.4f} |"]
     ev = report.get("encode_video")
     if ev:

@@ -27,7 +27,7 @@ def add_commands(subparsers) -> None:
                         "Gaussians' spacing, io/codec.clip_bits)")
     p.add_argument("--psnr", action="store_true",
                    help="measure the PSNR of one frame in 32 (at most 8) against the source, as Blender's Import "
-                        "does; each is a full render")
+                        "does, on the Gaussians as the file holds them; each is a full render")
     add_encoder_arguments(p)
     p.set_defaults(func=_encode_command)
 
@@ -58,19 +58,9 @@ def _encode_command(args) -> None:
             bar.update(done - bar.n)
             return True
 
-        if streamed:
-            # Streamed: memory stays bounded by the chunk, and the writer only renames its temporary
-            # file into place when every frame is in, so an interrupted encode leaves no file behind.
-            from ..io.codec import clip_bits
-            from ..io.hgs import HgsWriter
-            bits = clip_bits(args.bits, plan.width, plan.height, plan.layout.count)
-            if args.position_bits:
-                bits = (args.position_bits,) * 2 + bits[2:]
-            # the writer's default quantizer (as `bench scale` streams), at these depths
-            with HgsWriter(args.output, plan.width, plan.height, plan.layout.count, None, plan.fps,
-                           plan.grid, plan.source, bits=bits) as writer:
-                for _, params in plan.chunks(progress, psnr_frames=psnr_frames):
-                    writer.write(params)
+        if streamed:  # memory stays bounded by a chunk; only a complete file appears under the output's name
+            bits = (args.position_bits,) * 2 + (args.bits,) * 6 if args.position_bits else args.bits
+            plan.write_hgs(args.output, bits, progress, psnr_frames=psnr_frames)
         else:
             from ..io.clips import save_clip
             save_clip(plan.video(progress, psnr_frames=psnr_frames), args.output)

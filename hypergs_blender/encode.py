@@ -258,8 +258,12 @@ class EncodeCost:
     threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
     decode_s_per_pixel: float = 4e-8  # decoding the source frame (PyAV) and handing it to the encoder
     write_s_per_gaussian: float = 4.4e-7  # writing the frame cache
-    refine_first_s_per_gaussian: float = 3e-4  # refine step 1: least-squares colours (torch, CPU)
-    refine_s_per_gaussian_step: float = 7e-6  # each further refine step (Adam, torch, CPU)
+    # Refinement (torch, CPU, one thread; threads speed it up as they do the network: 1.45-1.65x on two), per
+    # Gaussian and frame: step 1, the least-squares colours (refine.LS_ITERATIONS), and each further Adam step.
+    # Session 28, 720p High (57,600 Gaussians, 4 frames of a held-out pan; `hypergs encode --quality high
+    # --refine 0|1|11` on 1 and 2 threads): 1.8e-5 and 2.8e-6 (two threads: 1.1e-5 and 1.9e-6).
+    refine_first_s_per_gaussian: float = 1.8e-5
+    refine_s_per_gaussian_step: float = 2.8e-6
     blend_bytes_per_gaussian: float = 40.0  # the frame a clip's mesh holds: float32 position, scale, rotation, RGBA
     # The transformer pays per canvas-sized window (TileLayout.windows) of n = k x k Gaussians:
     # predict_s_per_window + predict_s_per_gaussian n + predict_s_per_pair n^2 (its query attention).
@@ -294,7 +298,8 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
     ENCODE_COSTS."""
     cost = ENCODE_COSTS[encoder.partition("-")[0]]
     n, threads = layout.count, max(1, int(threads))
-    speedup = 1 + THREAD_GAIN * (threads - 1) if cost.threaded else 1.0
+    gain = 1 + THREAD_GAIN * (threads - 1)  # of a threaded network's pass, and of refinement (torch) after any encoder
+    speedup = gain if cost.threaded else 1.0
     windows = getattr(layout, "windows", 0)
     if windows:  # the transformer: each window predicts its k x k lattice points
         per_window = layout.per_tile
@@ -302,10 +307,9 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
                              + cost.predict_s_per_pair * per_window ** 2)
     else:
         predict = cost.predict_s_per_gaussian * n
+    refine_s = n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1)) if refine > 0 else 0
     per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
-                 + predict / speedup)
-    if refine > 0:
-        per_frame += n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
+                 + predict / speedup + refine_s / gain)
     return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
                     cost.blend_bytes_per_gaussian * n)
 

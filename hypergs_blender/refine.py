@@ -61,6 +61,12 @@ ADAM_EPS = 8e-8
 # held-out: +0.25 / +2.1 dB at 30 steps, +0.5 / +0.6 at 100, +0.8 / +0.5 at 300), not from random values
 # (-0.6 / -1.3 dB at 100).
 FIT_WARMUP = {"random": 0, "grid": REFINE_WARMUP}
+# The least-squares colours' conjugate-gradient iterations, each a forward and a backward render (as an Adam
+# step). Session 28, the bundled network's predictions (`tools/refine_sweep.py ... --variant cg=K`; dev /
+# held-out, 256^2 N = 1000): 5 iterations against 10 give refine 1 29.08 / 32.88 dB against 29.08 / 32.89,
+# refine 10 and 50 the same to the digit (29.56 / 33.26, 31.74 / 34.91), the 480^2 crops at 14,400 refine 1
+# 41.43 against 41.44 and refine 30 42.34 against 42.33; 3 iterations lose up to 0.03 dB.
+LS_ITERATIONS = 5
 
 
 def refine_steps(steps: int) -> StepSizes:
@@ -101,7 +107,7 @@ def random_init(num_frames: int, n: int, width: int, height: int, seed: int = 0)
     return params
 
 
-def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations: int = 10,
+def least_squares_colours(params: torch.Tensor, target: torch.Tensor, iterations: int = LS_ITERATIONS,
                           ridge: float = 1e-4) -> torch.Tensor:
     """Best colours for fixed geometry: CG on (A^T A + ridge I) c = A^T y, per frame and channel."""
     h, w = target.shape[-3:-1]

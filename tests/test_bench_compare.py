@@ -191,6 +191,46 @@ def test_fit_returns_each_frames_best_step():
     assert after[1] < before[1] / 4
 
 
+def test_least_squares_colours_against_a_dense_solve():
+    """refine.least_squares_colours (conjugate gradients through the rasterizer) against numpy's solve of the
+    same normal equations, built column by column from renders of one unit colour: exact with as many
+    iterations as unknowns per channel, and within 1 % of the start's excess error over the optimum's at
+    LS_ITERATIONS from colours near the optimum, as a prediction's are."""
+    import torch
+
+    from hypergs_blender.refine import LS_ITERATIONS, least_squares_colours, random_init
+    from hypergs_blender.render import render_torch
+
+    n, size, ridge = 16, 16, 1e-4
+    params = torch.from_numpy(random_init(1, n, size, size, seed=5)).double()
+    grid = (torch.arange(4, dtype=torch.float64) + 0.5) / 2 - 1  # a 4 x 4 lattice of 4-px cells: well posed
+    params[0, :, 0], params[0, :, 1] = grid.repeat(4), grid.repeat_interleave(4)
+    params[0, :, 2:4] = torch.tensor([2.5, 1.5], dtype=torch.float64)
+    target = torch.from_numpy(np.random.default_rng(1).uniform(0, 1, (1, size, size, 3)))
+    columns = []
+    for i in range(n):  # A's column i: Gaussian i at colour 1, the others black (one channel; all alike)
+        unit = params.clone()
+        unit[..., 5:8] = 0
+        unit[0, i, 5:8] = 1
+        columns.append(render_torch(unit, size, size, size, size)[0, ..., 0].reshape(-1))
+    a = torch.stack(columns, 1).numpy()
+    y = target[0].reshape(-1, 3).numpy()
+    exact = np.linalg.solve(a.T @ a + ridge * np.eye(n), a.T @ y)  # [n, 3]
+    solved = least_squares_colours(params, target, iterations=n, ridge=ridge)
+    np.testing.assert_allclose(solved[0, :, 5:8].numpy(), exact, rtol=1e-5, atol=1e-6)
+    assert torch.equal(solved[..., :5], params[..., :5])  # the geometry stays
+
+    def error(colours):
+        return float(((a @ colours - y) ** 2).sum() + ridge * (colours ** 2).sum())
+    start = exact + np.random.default_rng(2).normal(0, 0.1, exact.shape)  # a prediction near the optimum
+    near = params.clone()
+    near[0, :, 5:8] = torch.from_numpy(start)
+    quick = least_squares_colours(near, target)[0, :, 5:8].numpy()
+    assert error(start) - error(exact) > 1e-2  # there is something to gain
+    assert error(quick) - error(exact) <= 0.01 * (error(start) - error(exact))
+    assert LS_ITERATIONS < n  # so the second check is not the first
+
+
 def test_refine_ladder_matches_refine_params(tiny_video):
     """The bench times every K as its own run; each K must equal refine_params(K)."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)
@@ -213,6 +253,10 @@ def test_vs_fit_report_shape(tiny_video, tmp_path):
                                  fit_budget=0.0)
     report = json.loads(json.dumps(report))  # JSON-clean
     assert report["bench"] == "vs-fit" and report["machine"]["device"] == "cpu"
+    from hypergs_blender import refine  # the settings name the refinement the ratios were measured with
+    assert report["settings"]["refine_schedule"] == {"warmup": refine.REFINE_WARMUP, "decay": refine.REFINE_DECAY,
+                                                     "adam_eps": refine.ADAM_EPS}
+    assert report["settings"]["fit_warmup"] == refine.FIT_WARMUP
     (video,) = report["videos"]
     square, crop, native = video["sizes"]
     assert [(b["size"], b["width"], b["height"]) for b in video["sizes"]] == [("32", 32, 32), ("crop40", 40, 40),

@@ -177,12 +177,19 @@ def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
     step = cost.refine_first_s_per_gaussian + 29 * cost.refine_s_per_gaussian_step
     assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step)
     assert estimate(small, 10, encoder="floor").seconds < a.seconds  # the network costs more
-    # More threads speed up the network's pass only, by THREAD_GAIN per thread; the estimate says what it assumed.
+    # More threads speed up the network's pass and refinement, by THREAD_GAIN per thread, and nothing else (the
+    # floor, decoding, writing); the estimate says what it assumed.
     two = estimate(small, 10, threads=2)
     predict = cost.predict_s_per_gaussian * small.count * 10
     assert two.threads == 2 and a.threads == 1
     assert a.seconds - two.seconds == pytest.approx(predict - predict / (1 + THREAD_GAIN))
     assert estimate(small, 10, encoder="floor", threads=2).seconds == estimate(small, 10, encoder="floor").seconds
+    refining = small.count * 10 * step
+    assert refined.seconds - estimate(small, 10, refine=30, threads=2).seconds == pytest.approx(
+        (predict + refining) * (1 - 1 / (1 + THREAD_GAIN)))
+    floor = estimate(small, 10, refine=30, encoder="floor").seconds
+    assert floor - estimate(small, 10, refine=30, encoder="floor", threads=2).seconds == pytest.approx(
+        refining * (1 - 1 / (1 + THREAD_GAIN)))
 
 
 def test_settings_read_a_preset_a_count_or_a_cell():

@@ -12,8 +12,8 @@ centre crop).
 
 (the first variant is session 9's refinement: no warm-up, means 0.02 cells, log-scales 0.005, rotation
 0.01; the second session 10's; the third today's.) Variant fields: warmup (steps), decay (a share of
-the steps), mean / scale / rotation / colour (factors of refine_steps(K)'s mean_cells / log_scale /
-rotation / colour).
+the steps), cg (the least-squares colours' conjugate-gradient iterations, refine.LS_ITERATIONS),
+mean / scale / rotation / colour (factors of refine_steps(K)'s mean_cells / log_scale / rotation / colour).
 """
 from __future__ import annotations
 
@@ -26,25 +26,25 @@ from hypergs_blender import raster
 from hypergs_blender.bench.common import load_frames, psnr_of, render
 from hypergs_blender.encode import encode_frames, frames_layout
 from hypergs_blender.network import resolve_encoder
-from hypergs_blender.refine import StepSizes, fit, least_squares_colours, refine_steps
+from hypergs_blender.refine import LS_ITERATIONS, StepSizes, fit, least_squares_colours, refine_steps
 
 FIELDS = {"mean": "mean_cells", "scale": "log_scale", "rotation": "rotation", "colour": "colour"}
 
 
 def parse_variant(text: str) -> dict:
-    variant = {"warmup": 0, "decay": 0.0}
+    variant = {"warmup": 0, "decay": 0.0, "cg": LS_ITERATIONS}
     for item in filter(None, text.split(",")):
         key, _, value = item.partition("=")
         if key not in variant and key not in FIELDS:
-            raise SystemExit(f"unknown variant field {key!r} (warmup, decay, {', '.join(FIELDS)})")
-        variant[key] = int(value) if key == "warmup" else float(value)
+            raise SystemExit(f"unknown variant field {key!r} (warmup, decay, cg, {', '.join(FIELDS)})")
+        variant[key] = int(value) if key in ("warmup", "cg") else float(value)
     return variant
 
 
 def refine_variant(params: np.ndarray, frames: np.ndarray, steps: int, variant: dict) -> np.ndarray:
-    """refine.refine_params(params, frames, steps) with the variant's step sizes and warm-up."""
+    """refine.refine_params(params, frames, steps) with the variant's step sizes, warm-up, decay and CG iterations."""
     target = torch.from_numpy(frames).float() / 255
-    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target)
+    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target, variant["cg"])
     base = refine_steps(steps)
     sizes = StepSizes(**{name: getattr(base, name) * variant.get(key, 1.0) for key, name in FIELDS.items()})
     return fit(target, refined, steps - 1, sizes, decay=variant["decay"], warmup=variant["warmup"]).numpy()

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..encode import FloorEncoder, encode_frames, frames_layout
 from ..network import resolve_encoder
-from ..refine import FIT_WARMUP, fit, random_init, refine_params
+from ..refine import ADAM_EPS, FIT_WARMUP, REFINE_DECAY, REFINE_WARMUP, fit, random_init, refine_params
 from ..refine import refine_steps as refine_step_sizes
 from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, load_frames, machine_report, parse_frames, psnr_of, render,
                      resolve_device, say, sync)
@@ -146,6 +146,8 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
                            "start": start, "encoder": encoder.name, "threads": threads, "fit_budget_s": fit_budget,
                            "fit_all": fit_all,
                            "refine_steps_sizes": {k: asdict(refine_step_sizes(k)) for k in refine_steps},
+                           "refine_schedule": {"warmup": REFINE_WARMUP, "decay": REFINE_DECAY, "adam_eps": ADAM_EPS},
+                           "fit_warmup": dict(FIT_WARMUP),
                            "timing": "seconds per frame, wall clock, all frames as one batch"},
               "videos": []}
     warmed = False

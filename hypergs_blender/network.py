@@ -228,6 +228,9 @@ def transformer_geometry(cfg, gaussians: tuple[int, int] | None = None) -> dict:
 def read_card(directory=WEIGHTS_DIR, name: str = BUNDLED_NAME) -> dict:
     path = Path(directory) / f"{name}.json"
     if not path.is_file():
+        models = sorted(p.stem for p in Path(directory).glob("*.json"))
+        if models:  # a name mistyped, or a design's name (Blender's "transformer") for its file's
+            raise HyperGSError(f"no model {name!r} in {directory}: its models are {', '.join(models)}")
         raise HyperGSError(f"no model weights at {path}: train one with `hypergs train` and `hypergs export`")
     return json.loads(path.read_text())
 

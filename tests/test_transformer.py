@@ -182,8 +182,10 @@ def test_a_folder_of_several_models_needs_a_name(exported, tmp_path):
     with pytest.raises(HyperGSError, match="several models"):
         resolve_encoder(weights=exported)
     assert resolve_encoder(weights=exported / "other.json", backend="onnx").name == "transformer-onnx"
-    with pytest.raises(HyperGSError, match="no model weights"):
-        resolve_encoder(weights=exported / "missing.json")
+    with pytest.raises(HyperGSError, match="no model 'missing' in .*: its models are other, tiny"):
+        resolve_encoder(weights=exported / "missing.json")  # the name mistyped: what the folder holds
+    with pytest.raises(HyperGSError, match="no model weights at"):
+        resolve_encoder(weights=tmp_path / "missing.json")  # a folder without models
 
 
 def test_eval_command_with_a_patch_grid(exported, moving_video, capsys):

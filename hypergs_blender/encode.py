@@ -307,7 +307,9 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
                              + cost.predict_s_per_pair * per_window ** 2)
     else:
         predict = cost.predict_s_per_gaussian * n
-    refine_s = n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1)) if refine > 0 else 0
+    refine_s = 0.0
+    if refine > 0:
+        refine_s = n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
     per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
                  + predict / speedup + refine_s / gain)
     return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
@@ -482,14 +484,17 @@ class EncodePlan:
         whose ranges are fitted to the whole clip, as Blender's export fits them, with memory bounded by a
         chunk whatever the clip's length. The Gaussians stream into a float16 .hgs (the frame cache's codec,
         about twice the final size) under the output's temporary name, which two passes then read: one fits
-        the ranges, one quantizes (clips.save_clip). Ranges fixed before the first frame (Quantizer.default:
-        scales from 1/8 pixel to the canvas, colours in [-1, 2]) cost a smooth held-out 720p clip 2.9 dB at
-        Standard and 6.6 at High (model card, session 28). `psnr_frames` frames are measured as the file
-        holds them (`psnr`). on_chunk(frames, params) after each chunk is encoded."""
+        the ranges, one quantizes (clips.save_clip). A folder with less room than the float16 file's estimate
+        is refused before the work starts. Ranges fixed before the first frame (Quantizer.default: scales from
+        1/8 pixel to the canvas, colours in [-1, 2]) cost a smooth held-out 720p clip 2.9 dB at Standard and
+        6.6 at High (model card, session 28). `psnr_frames` frames are measured as the file holds them
+        (`psnr`). on_chunk(frames, params) after each chunk is encoded."""
         from .io import cache
         from .io.clips import ClipFrames, save_clip
-        from .io.files import AtomicOutput
+        from .io.files import AtomicOutput, check_free_space
         from .io.hgs import HgsError, HgsReader
+        frames_bytes = estimate(self.layout, len(self.indices), encoder=self.encoder.name).cache_bytes
+        check_free_space(path, frames_bytes, f"the float16 file of its {len(self.indices)} frames' Gaussians")
         picks, sources, done = set(psnr_frame_picks(len(self.indices), psnr_frames)), {}, 0
         held = AtomicOutput(path, streamed=True)  # a temporary name of the output's: the float16 frames
         try:

@@ -219,13 +219,17 @@ def _in_a_small_file_system(tmp_path, script: str, size_kb: int = 64):
 
 
 def test_a_full_disk_is_a_one_line_error_and_leaves_no_file(tmp_path):
-    """On a real full file system (a 64 kB tmpfs): `hypergs encode` to a .hgs file and a frame cache
-    written from Python fail with one line naming the file and the reason, and leave the file system
-    empty."""
+    """On a real full file system (a 64 kB tmpfs): `hypergs encode` to a .hgs file is refused before it starts
+    (its float16 frames will not fit); with that check skipped it fails while writing them; a frame cache
+    written from Python fails too. Each is one line naming the file and the reason, and leaves the file
+    system empty."""
     import sys
     from conftest import make_pan_clip
     video = make_pan_clip(tmp_path / "pan.mp4", frames=24)
     python = sys.executable
+    encode = f"['encode', '{video}', '-o', os.environ['FS'] + '/clip.hgs', '--encoder', 'floor', '--quality', 'draft']"
+    unchecked = ("import os; import hypergs_blender.io.files as files; files.check_free_space = lambda *a: None; "
+                 f"from hypergs_blender.commands.cli import main; main({encode})")
     copy = ("from hypergs_blender.gaussians import GaussianVideo; from hypergs_blender.io import cache; "
             "from hypergs_blender.io.clips import ClipFrames; import numpy as np, os; "
             "p = np.random.default_rng(0).uniform(0.5, 1, (40, 2000, 8)).astype(np.float32); "
@@ -234,11 +238,15 @@ def test_a_full_disk_is_a_one_line_error_and_leaves_no_file(tmp_path):
         {python} -m hypergs_blender encode {video} -o $FS/clip.hgs --encoder floor --quality draft 2>&1 \
             | sed 's/^/cli: /'; echo "rc=${{PIPESTATUS[0]}}"
         echo "left: $(ls -A $FS)"
+        {python} -c "{unchecked}" 2>&1 | sed 's/^/unchecked: /'; echo "rc=${{PIPESTATUS[0]}}"
+        echo "left: $(ls -A $FS)"
         {python} -c "{copy}"; echo "rc=$?"
         echo "left: $(ls -A $FS)"
     """)
     lines = proc.stdout.splitlines()
-    assert [line for line in lines if line.startswith(("rc=", "left:"))] == ["rc=1", "left: ", "rc=1", "left: "], proc
+    assert [line for line in lines if line.startswith(("rc=", "left:"))] == ["rc=1", "left: "] * 3, proc
     cli = [line for line in lines if line.startswith("cli: ") and line.strip() != "cli:"]
-    assert len(cli) == 1 and "clip.hgs: cannot write (No space left on device)" in cli[0], cli  # one line
+    assert len(cli) == 1 and "clip.hgs: the float16 file of its" in cli[0] and "GB free in" in cli[0], cli
+    unchecked = [line for line in lines if line.startswith("unchecked: ") and line.strip() != "unchecked:"]
+    assert len(unchecked) == 1 and "clip.hgs: cannot write (No space left on device)" in unchecked[0], unchecked
     assert proc.stderr.strip().splitlines()[-1].endswith("c.hgs: cannot write (No space left on device)"), proc.stderr

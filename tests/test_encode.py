@@ -284,6 +284,23 @@ def test_an_interrupted_hgs_encode_leaves_the_folder_as_it_was(moving_video, tmp
     assert out.read_bytes() == b"the user's file" and sorted(tmp_path.iterdir()) == before
 
 
+def test_an_hgs_encode_without_room_for_its_frames_is_refused_before_it_starts(moving_video, tmp_path, monkeypatch,
+                                                                               capsys):
+    import shutil
+    from collections import namedtuple
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(10**9, 10**9 - 1000, 1000))  # 1 kB free
+    out = tmp_path / "clip.hgs"
+    with pytest.raises(SystemExit):
+        main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192"])
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "clip.hgs: the float16 file of its 12 frames' Gaussians needs about" in error[0]
+    assert "GB free in" in error[0] and not out.exists() and not list(tmp_path.glob(".clip.hgs*"))
+    monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(10**9, 0, 10**9))  # room: it runs
+    main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192"])
+    assert load_clip(out).num_frames == 12
+
+
 @pytest.mark.parametrize("argv,expected", [
     ([], EncodeSettings(cell=6.0)), (["--quality", "draft"], EncodeSettings(cell=8.0)),
     (["--quality", "high"], EncodeSettings(cell=4.0, refine=30)),

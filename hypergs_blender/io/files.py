@@ -20,6 +20,7 @@ import glob
 import os
 import re
 import secrets
+import shutil
 import socket
 from pathlib import Path
 
@@ -48,6 +49,20 @@ def check_output_folder(path, inputs=()) -> Path:
     if path.exists() and not path.is_dir():
         raise HyperGSError(f"{path}: is a file, not a folder")
     return _check_target(path, path if path.is_dir() else path.parent, inputs)
+
+
+def check_free_space(path, needed: float, what: str) -> None:
+    """Raises HyperGSError, before the work starts, when the folder of `path` has less than `needed` bytes
+    free for `what`: a full disk later would fail as cleanly (no file left) but after the work was spent.
+    Where the free space cannot be read, the write itself will say."""
+    path = _path(path)
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return
+    if free < needed:
+        raise HyperGSError(f"{path}: {what} needs about {needed / 1e9:.2g} GB free in {path.parent}, which has "
+                           f"{free / 1e9:.2g} GB")
 
 
 def _check_target(path: Path, folder: Path, inputs) -> Path:

@@ -433,6 +433,12 @@ class EncodePlan:
         return self.layout.cols, self.layout.rows
 
     @property
+    def float16_bytes(self) -> float:
+        """The estimated size of this encode's Gaussians in a float16 .hgs file (a frame cache, or write_hgs' first
+        pass), for checking a folder's room before the work starts (io.files.check_free_space)."""
+        return estimate(self.layout, len(self.indices), encoder=self.encoder.name).cache_bytes
+
+    @property
     def psnr(self) -> float:
         """Mean PSNR (dB) of the frames measured, rendered at the canvas size against the source."""
         return float(np.mean(self.psnr_values)) if self.psnr_values else math.nan
@@ -493,8 +499,7 @@ class EncodePlan:
         from .io.clips import ClipFrames, save_clip
         from .io.files import AtomicOutput, check_free_space
         from .io.hgs import HgsError, HgsReader
-        frames_bytes = estimate(self.layout, len(self.indices), encoder=self.encoder.name).cache_bytes
-        check_free_space(path, frames_bytes, f"the float16 file of its {len(self.indices)} frames' Gaussians")
+        check_free_space(path, self.float16_bytes, f"the float16 file of its {len(self.indices)} frames' Gaussians")
         picks, sources, done = set(psnr_frame_picks(len(self.indices), psnr_frames)), {}, 0
         held = AtomicOutput(path, streamed=True)  # a temporary name of the output's: the float16 frames
         try:

@@ -52,10 +52,15 @@ class Limit:
 
     def format(self, amount) -> str:
         if self.in_bytes:
-            if amount >= 1 << 20:
-                return f"{amount / 2**30:.3g} GiB" if amount >= 1 << 30 else f"{amount / 2**20:.3g} MiB"
-            return f"{amount:,.0f} bytes"
+            return byte_text(amount)
         return f"{amount:,.0f}" if amount < 1e15 else f"{amount:.3g}"
+
+
+def byte_text(amount) -> str:
+    """A size for a message: bytes below 1 MiB, then MiB, then GiB."""
+    if amount >= 1 << 20:
+        return f"{amount / 2**30:.3g} GiB" if amount >= 1 << 30 else f"{amount / 2**20:.3g} MiB"
+    return f"{amount:,.0f} bytes"
 
 
 GAUSSIANS = Limit("GAUSSIANS", 1 << 20, "Gaussians per frame")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from ..hypergs_blender.encode import EncodePlan, EncodeSettings, psnr_sample_count
 from ..hypergs_blender.io import cache
-from ..hypergs_blender.io.files import make_folders, remove_folders
+from ..hypergs_blender.io.files import check_free_space, make_folders, remove_folders
 from ..hypergs_blender.io.hgs import HgsHeader
 from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
 
@@ -45,10 +45,11 @@ def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, r
                progress=None) -> EncodeResult:
     """Encode `source` with `encoder` (make_encoder(runtime, settings.model)) into a new frame cache at `target` (its
     folder must exist), measuring the PSNR of frames spread over the clip (encode.psnr_sample_count of them) on the
-    frames the encode decoded.
-    progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
+    frames the encode decoded. A folder with less room than the cache's estimate is refused before any frame is
+    encoded. progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
     plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
+    check_free_space(target, plan.float16_bytes, f"the frame cache of {len(plan.indices)} frames")
     with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
                       plan.source) as writer:
         for _, params in plan.chunks(progress, psnr_frames=psnr_sample_count(len(plan.indices))):

@@ -54,8 +54,8 @@ def test_install_and_enable(session):
     assert r["engine"] and not r["torch_importable"]
 
 
-@pytest.mark.parametrize("case", ["corrupt_video", "truncated_video", "text_as_mp4", "missing_file", "no_strip",
-                                  "not_a_movie_strip"])
+@pytest.mark.parametrize("case", ["corrupt_video", "truncated_video", "text_as_mp4", "missing_file", "no_room",
+                                  "no_strip", "not_a_movie_strip"])
 def test_errors_are_reported_and_change_nothing(session, case):
     r = step(session, "errors")[case]
     assert r["raised"], "the error must reach the user (a RuntimeError from bpy.ops in background mode)"
@@ -240,6 +240,13 @@ def run_session(zip_path, work, out_path):
         attempt("text_as_mp4", "notes.mp4", lambda: bpy.ops.hypergs.import_video(filepath=str(text)))
         attempt("missing_file", "no such video file",
                 lambda: bpy.ops.hypergs.import_video(filepath=str(Path(work) / "nothing.mp4")))
+        import shutil
+        disk_usage = shutil.disk_usage
+        shutil.disk_usage = lambda folder: type(disk_usage(work))(10**9, 10**9 - 1000, 1000)  # 1,000 bytes free
+        try:
+            attempt("no_room", "which has 1,000 bytes", lambda: bpy.ops.hypergs.import_video(filepath=str(CLIP)))
+        finally:
+            shutil.disk_usage = disk_usage
         attempt("no_strip", "no strip selected", lambda: bpy.ops.hypergs.convert_strip())
         editor = scene.sequence_editor_create()
         strips = editor.strips if hasattr(editor, "strips") else editor.sequences

@@ -25,6 +25,7 @@ import socket
 from pathlib import Path
 
 from ..errors import HyperGSError
+from ..limits import byte_text
 
 _pending: set[Path] = set()  # temporary files not yet committed or discarded
 _HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
@@ -61,8 +62,8 @@ def check_free_space(path, needed: float, what: str) -> None:
     except OSError:
         return
     if free < needed:
-        raise HyperGSError(f"{path}: {what} needs about {needed / 1e9:.2g} GB free in {path.parent}, which has "
-                           f"{free / 1e9:.2g} GB")
+        raise HyperGSError(f"{path}: {what} needs about {byte_text(needed)} free in {path.parent}, which has "
+                           f"{byte_text(free)}")
 
 
 def _check_target(path: Path, folder: Path, inputs) -> Path:

@@ -102,6 +102,21 @@ def test_a_streamed_write_removes_what_killed_writers_of_its_output_left(tmp_pat
     assert sorted(tmp_path.iterdir()) == sorted([running, elsewhere, other_output])
 
 
+def test_a_streamed_write_also_removes_the_temporary_files_of_a_killed_writers_temporary_file(tmp_path):
+    """`hypergs encode -o a.hgs` writes its float16 frames through a writer of its own temporary file, which
+    has a temporary file of its own: killed then, it leaves both, and the next write of a.hgs removes both."""
+    import subprocess
+    import sys
+    target = tmp_path / "a.hgs"
+    code = ("import os; from hypergs_blender.io import files; held = files.AtomicOutput(os.environ['T'], streamed=True); "
+            "files.AtomicOutput(held.temp, streamed=True).open().write(b'x'); os._exit(9)")
+    subprocess.run([sys.executable, "-c", code], env={**os.environ, "T": str(target)}, check=False)
+    held, nested = sorted(tmp_path.iterdir(), key=lambda p: len(p.name))
+    assert held.name.startswith(".a.hgs.") and nested.name.startswith(f".{held.name}."), (held, nested)
+    files.AtomicOutput(target, streamed=True).discard()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_atomic_output_keeps_the_umask_permissions(tmp_path):
     with files.AtomicOutput(tmp_path / "a.json") as temp:
         temp.write_text("{}")

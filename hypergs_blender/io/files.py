@@ -214,10 +214,14 @@ def _remove_stale(path: Path) -> None:
     for temp in path.parent.glob(glob.escape(prefix) + "*" + glob.escape(suffix)):
         owner = temp.name[len(prefix):-len(suffix)].rsplit("-", 2)
         if len(owner) == 3 and owner[0] == _HOST and owner[1].isdigit() and not _process_runs(int(owner[1])):
-            try:
-                temp.unlink()
-            except OSError:
-                pass
+            # with the temporary files of its own that the same process wrote (EncodePlan.write_hgs streams its
+            # float16 frames into one under the output's temporary name)
+            nested = path.parent.glob(glob.escape(f".{temp.name}.") + "*" + glob.escape(suffix))
+            for leftover in [temp, *nested]:
+                try:
+                    leftover.unlink()
+                except OSError:
+                    pass
 
 
 def discard_pending() -> None:

@@ -194,14 +194,18 @@ def _keep_better(best: tuple | None, params: torch.Tensor, errors: torch.Tensor)
     return torch.where(better[..., None, None], params, best[0]), torch.minimum(errors, best[1])
 
 
-def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, device="cpu") -> np.ndarray:
+def refine_params(params: np.ndarray, frames: np.ndarray, steps: int, device="cpu", sizes: StepSizes | None = None,
+                  warmup: int = REFINE_WARMUP, decay: float = REFINE_DECAY,
+                  ls_iterations: int = LS_ITERATIONS) -> np.ndarray:
     """Warm-started refinement of [T, N, 8] params on a W x H canvas against uint8 frames [T, H, W, 3]:
-    least-squares colours (step 1), then `steps - 1` Adam steps from there (refine_steps(steps), ramped up
-    over REFINE_WARMUP steps, constant, then decayed over the last REFINE_DECAY of them)."""
+    least-squares colours (step 1, `ls_iterations` CG iterations), then `steps - 1` Adam steps from there (step
+    sizes `sizes`, default refine_steps(steps), ramped up over `warmup` steps, constant, then decayed over the
+    last `decay` share of them). The defaults are the product's; the others are for experiments
+    (tools/refine_sweep.py)."""
     if steps < 1:
         raise ValueError(f"refine steps must be >= 1, got {steps}")
     target = torch.from_numpy(frames).to(device).float() / 255
-    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)).to(device), target)
+    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)).to(device), target, ls_iterations)
     if steps > 1:
-        refined = fit(target, refined, steps - 1, refine_steps(steps), decay=REFINE_DECAY, warmup=REFINE_WARMUP)
+        refined = fit(target, refined, steps - 1, sizes or refine_steps(steps), decay=decay, warmup=warmup)
     return refined.cpu().numpy()

@@ -26,7 +26,7 @@ from hypergs_blender import raster
 from hypergs_blender.bench.common import load_frames, psnr_of, render
 from hypergs_blender.encode import encode_frames, frames_layout
 from hypergs_blender.network import resolve_encoder
-from hypergs_blender.refine import LS_ITERATIONS, StepSizes, fit, least_squares_colours, refine_steps
+from hypergs_blender.refine import LS_ITERATIONS, StepSizes, refine_params, refine_steps
 
 FIELDS = {"mean": "mean_cells", "scale": "log_scale", "rotation": "rotation", "colour": "colour"}
 
@@ -43,11 +43,10 @@ def parse_variant(text: str) -> dict:
 
 def refine_variant(params: np.ndarray, frames: np.ndarray, steps: int, variant: dict) -> np.ndarray:
     """refine.refine_params(params, frames, steps) with the variant's step sizes, warm-up, decay and CG iterations."""
-    target = torch.from_numpy(frames).float() / 255
-    refined = least_squares_colours(torch.from_numpy(np.ascontiguousarray(params)), target, variant["cg"])
     base = refine_steps(steps)
     sizes = StepSizes(**{name: getattr(base, name) * variant.get(key, 1.0) for key, name in FIELDS.items()})
-    return fit(target, refined, steps - 1, sizes, decay=variant["decay"], warmup=variant["warmup"]).numpy()
+    return refine_params(params, frames, steps, sizes=sizes, warmup=variant["warmup"], decay=variant["decay"],
+                         ls_iterations=variant["cg"])
 
 
 def main() -> None:

@@ -433,9 +433,9 @@ class EncodePlan:
         return self.layout.cols, self.layout.rows
 
     @property
-    def float16_bytes(self) -> float:
-        """The estimated size of this encode's Gaussians in a float16 .hgs file (a frame cache, or write_hgs' first
-        pass), for checking a folder's room before the work starts (io.files.check_free_space)."""
+    def cache_bytes(self) -> float:
+        """The estimated size of this encode's frame cache (encode.estimate), for checking a folder's room before
+        the work starts (io.files.check_free_space)."""
         return estimate(self.layout, len(self.indices), encoder=self.encoder.name).cache_bytes
 
     @property
@@ -488,31 +488,41 @@ class EncodePlan:
                   on_chunk: Callable[[np.ndarray, np.ndarray], None] | None = None) -> None:
         """Encode into a quantized .hgs file at `path` (`bits`: an int or 8 depths, as clips.save_clip takes them)
         whose ranges are fitted to the whole clip, as Blender's export fits them, with memory bounded by a
-        chunk whatever the clip's length. The Gaussians stream into a float16 .hgs (the frame cache's codec,
-        about twice the final size) under the output's temporary name, which two passes then read: one fits
-        the ranges, one quantizes (clips.save_clip). A folder with less room than the float16 file's estimate
-        is refused before the work starts. Ranges fixed before the first frame (Quantizer.default: scales from
-        1/8 pixel to the canvas, colours in [-1, 2]) cost a smooth held-out 720p clip 2.9 dB at Standard and
-        6.6 at High (model card, session 28). `psnr_frames` frames are measured as the file holds them
-        (`psnr`). on_chunk(frames, params) after each chunk is encoded."""
+        chunk whatever the clip's length. The Gaussians stream into a float16 .hgs under the output's temporary
+        name (uncompressed: read once, soon), the ranges are fitted on the way, and a second pass quantizes that
+        file (clips.save_clip). A folder without room for both files is refused before the work starts. Ranges
+        fixed before the first frame (Quantizer.default: scales from 1/8 pixel to the canvas, colours in
+        [-1, 2]) cost a smooth held-out 720p clip 2.9 dB at Standard and 6.6 at High (model card, session 28).
+        `psnr_frames` frames are measured as the file holds them (`psnr`). on_chunk(frames, params) after each
+        chunk is encoded."""
         from .io import cache
         from .io.clips import ClipFrames, save_clip
+        from .io.codec import Quantizer, clip_bits, float16_frame_bytes
         from .io.files import AtomicOutput, check_free_space
         from .io.hgs import HgsError, HgsReader
-        check_free_space(path, self.float16_bytes, f"the float16 file of its {len(self.indices)} frames' Gaussians")
-        picks, sources, done = set(psnr_frame_picks(len(self.indices), psnr_frames)), {}, 0
+        total = len(self.indices)
+        check_free_space(path, float16_frame_bytes(self.layout.count) * total + self.cache_bytes,
+                         f"the float16 file of its {total} frames' Gaussians and the .hgs quantized from it")
+        picks, sources, done = set(psnr_frame_picks(total, psnr_frames)), {}, 0
         held = AtomicOutput(path, streamed=True)  # a temporary name of the output's: the float16 frames
+
+        def streamed(frames_file):  # each chunk's Gaussians, written on the way to the ranges' fit
+            nonlocal done
+            for frames, params in self.chunks(progress, chunk_frames):
+                sources.update((done + i, frames[i]) for i in range(len(frames)) if done + i in picks)
+                frames_file.write(params)
+                done += len(frames)
+                if on_chunk is not None:
+                    on_chunk(frames, params)
+                yield params
+
         try:
             with cache.writer(held.temp, self.width, self.height, self.layout.count, self.fps, self.grid,
-                              self.source) as frames_file:
-                for frames, params in self.chunks(progress, chunk_frames):
-                    sources.update((done + i, frames[i]) for i in range(len(frames)) if done + i in picks)
-                    frames_file.write(params)
-                    done += len(frames)
-                    if on_chunk is not None:
-                        on_chunk(frames, params)
+                              self.source, zlib_level=0) as frames_file:
+                quantizer = Quantizer.fit(streamed(frames_file),
+                                          clip_bits(bits, self.width, self.height, self.layout.count))
             with HgsReader(held.temp) as reader:
-                save_clip(ClipFrames.of(reader), path, bits=bits)
+                save_clip(ClipFrames.of(reader), path, quantizer=quantizer)
         except HgsError as e:  # a full disk while the float16 frames were written: the user knows the output's name
             raise HgsError(str(e).replace(str(held.temp), str(held.path))) from None
         finally:

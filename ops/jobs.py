@@ -49,7 +49,7 @@ def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, r
     encoded. progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
     plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
-    check_free_space(target, plan.float16_bytes, f"the frame cache of {len(plan.indices)} frames")
+    check_free_space(target, plan.cache_bytes, f"the frame cache of {len(plan.indices)} frames")
     with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
                       plan.source) as writer:
         for _, params in plan.chunks(progress, psnr_frames=psnr_sample_count(len(plan.indices))):

@@ -369,6 +369,21 @@ def test_float16_is_smaller_than_float32_and_larger_than_quantized(tmp_path):
     assert q8 < f16 < video.params.nbytes * 0.7
 
 
+def test_float16_frames_stored_uncompressed_read_the_same(tmp_path):
+    """zlib level 0 (write_hgs' float16 frames, read once): the same values as the frame cache's level 1, in
+    the plain size of the frames (codec.float16_frame_bytes) plus the file's framing."""
+    from hypergs_blender.io.codec import float16_frame_bytes
+    video = GaussianVideo(moving_params(np.random.default_rng(13), 5, 3000), 64, 64)
+    sizes = {}
+    for level in (0, 1):
+        with HgsWriter(tmp_path / f"l{level}.hgs", 64, 64, 3000, codec="float16", group_size=1, zlib_level=level) as w:
+            w.write(video.params)
+        sizes[level] = (tmp_path / f"l{level}.hgs").stat().st_size
+    assert np.array_equal(load_hgs(tmp_path / "l0.hgs").params, load_hgs(tmp_path / "l1.hgs").params)
+    plain = 5 * float16_frame_bytes(3000)
+    assert sizes[1] < plain < sizes[0] < plain * 1.01
+
+
 def test_float16_writer_clips_and_counts_what_float16_cannot_hold(tmp_path):
     params = moving_params(np.random.default_rng(13), 2, 10)
     params[0, 0, 2] = 1e-9  # a scale below float16's smallest normal: raised to it

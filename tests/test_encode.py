@@ -294,7 +294,7 @@ def test_an_hgs_encode_without_room_for_its_frames_is_refused_before_it_starts(m
     with pytest.raises(SystemExit):
         main(["encode", str(moving_video), "-o", str(out), "--encoder", "floor", "--gaussians", "192"])
     error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and "clip.hgs: the float16 file of its 12 frames' Gaussians needs about" in error[0]
+    assert len(error) == 1 and "clip.hgs: the float16 file of its 12 frames' Gaussians and the .hgs" in error[0]
     assert "free in" in error[0] and "which has 1,000 bytes" in error[0]
     assert not out.exists() and not list(tmp_path.glob(".clip.hgs*"))
     monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(10**9, 0, 10**9))  # room: it runs

@@ -37,10 +37,11 @@ MAX_FRAME_BYTES = 64 << 20  # decoded frames kept for scrubbing (~35 frames of 5
 
 
 def writer(path, canvas_width: int, canvas_height: int, num_gaussians: int, fps: float, grid=(1, 1),
-           source: dict | None = None) -> HgsWriter:
-    """A streaming writer of a frame cache at `path` (use as a context manager, or close / abort)."""
+           source: dict | None = None, zlib_level: int = 1) -> HgsWriter:
+    """A streaming writer of a frame cache at `path` (use as a context manager, or close / abort); zlib_level 0
+    for a file read once soon after (codec.encode_float16_group)."""
     return HgsWriter(path, canvas_width, canvas_height, num_gaussians, fps=fps, grid=grid, source=source,
-                     group_size=1, codec="float16")
+                     group_size=1, codec="float16", zlib_level=zlib_level)
 
 
 def write_clip(clip: ClipFrames, path, progress=None) -> HgsHeader:

@@ -188,15 +188,16 @@ class HgsWriter(StreamingWriter):
         with HgsWriter(path, 256, 256, 1000, Quantizer.fit(params, 8)) as w:
             w.write(params)
 
-    codec: "quantized" or "float16" (see the module doc). quantizer (quantized only): the ranges go
-    into the header before any frame is seen; `Quantizer.fit` on the whole clip when you have it,
-    `Quantizer.default(w, h, bits)` otherwise. Values outside the ranges (quantized) or float16's
+    codec: "quantized" or "float16" (see the module doc; zlib_level 0 stores float16 frames uncompressed).
+    quantizer (quantized only): the ranges go into the header before any frame is seen; `Quantizer.fit`
+    on the whole clip when you have it, `Quantizer.default(w, h, bits)` otherwise. Values outside the ranges (quantized) or float16's
     (float16) are clipped and counted in `clipped`. On an exception inside `with`, or `abort()`, the
     partial file is removed and the file at `path`, if any, stays as it was."""
 
     def __init__(self, path, canvas_width: int, canvas_height: int, num_gaussians: int,
                  quantizer: Quantizer | None = None, fps: float = 24.0, grid=(1, 1), source: dict | None = None,
-                 group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto", bits=8, codec: str = "quantized"):
+                 group_size: int = DEFAULT_GROUP_SIZE, mode: str = "auto", bits=8, codec: str = "quantized",
+                 zlib_level: int = 1):
         if codec not in CODECS:
             raise HgsError(f"unknown .hgs codec {codec!r} (use {' or '.join(CODECS)})")
         if not 1 <= group_size <= MAX_GROUP_SIZE:
@@ -219,6 +220,7 @@ class HgsWriter(StreamingWriter):
         self.header = HgsHeader(int(canvas_width), int(canvas_height), float(fps), int(num_gaussians), grid,
                                 quantizer, int(group_size), source=dict(source or {}), codec=CODECS[codec])
         self.mode = mode
+        self.zlib_level = zlib_level  # the float16 codec's (codec.encode_float16_group)
         self.clipped = 0
         self._pending: list[np.ndarray] = []  # quantized frames of the group being filled
         self._entries: list[tuple[int, int, int, int]] = []
@@ -268,7 +270,7 @@ class HgsWriter(StreamingWriter):
         first = self.num_frames - len(self._pending)
         if self.header.codec == FLOAT16:
             try:
-                payload, clipped = encode_float16_group(np.stack(self._pending))
+                payload, clipped = encode_float16_group(np.stack(self._pending), self.zlib_level)
             except CodecError as e:
                 raise HgsError(str(e)) from e
             self.clipped += clipped

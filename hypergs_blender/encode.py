@@ -527,8 +527,9 @@ class EncodePlan:
             raise HgsError(str(e).replace(str(held.temp), str(held.path))) from None
         finally:
             held.discard()
-        with HgsReader(path) as reader:
-            self.psnr_values = [self.frame_psnr(reader.read_frame(i), sources[i]) for i in sorted(sources)]
+        if sources:
+            with HgsReader(path) as reader:
+                self.psnr_values = [self.frame_psnr(reader.read_frame(i), sources[i]) for i in sorted(sources)]
 
     def video(self, progress: Progress | None = None, chunk_frames: int = 16, psnr_frames: int = 0) -> GaussianVideo:
         """Every chunk's Gaussians as one GaussianVideo in memory (the source gains `encode_seconds`)."""

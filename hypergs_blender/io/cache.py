@@ -6,8 +6,8 @@ float32, the rest float16), any frame decodes on its own in a few ms, and its fr
 random access, so a frame change costs the same at frame 10 of a 30-frame clip and at frame 1,700 of
 a 1,800-frame one. Chosen over the QUANTIZED codec (8-bit, about half the size) by measurement: a
 1080p Standard frame (57,600 Gaussians) reads in ~5 ms against ~13 ms in a group of 16 (~200 ms to
-reach the last frame of a group), and the quantized codec's ranges, fixed before the first frame as a
-stream must fix them, cost 0.3 dB there (up to 6.6 dB on smooth clips: `tools/hgs_ranges.py`) where the
+reach the last frame of a group), and the quantized codec's ranges, when fixed before the first frame
+(`Quantizer.default`), cost 0.3 dB there (up to 6.6 dB on smooth clips: `tools/hgs_ranges.py`) where the
 float16 one costs nothing measurable (`tools/long_clips.py`). `writer` streams frames into it, one
 frame in memory, and only a complete file appears under its name (files.AtomicOutput).
 

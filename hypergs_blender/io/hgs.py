@@ -190,9 +190,9 @@ class HgsWriter(StreamingWriter):
 
     codec: "quantized" or "float16" (see the module doc; zlib_level 0 stores float16 frames uncompressed).
     quantizer (quantized only): the ranges go into the header before any frame is seen; `Quantizer.fit`
-    on the whole clip when you have it, `Quantizer.default(w, h, bits)` otherwise. Values outside the ranges (quantized) or float16's
-    (float16) are clipped and counted in `clipped`. On an exception inside `with`, or `abort()`, the
-    partial file is removed and the file at `path`, if any, stays as it was."""
+    on the whole clip when you have it, `Quantizer.default(w, h, bits)` otherwise. Values outside the
+    ranges (quantized) or float16's (float16) are clipped and counted in `clipped`. On an exception inside
+    `with`, or `abort()`, the partial file is removed and the file at `path`, if any, stays as it was."""
 
     def __init__(self, path, canvas_width: int, canvas_height: int, num_gaussians: int,
                  quantizer: Quantizer | None = None, fps: float = 24.0, grid=(1, 1), source: dict | None = None,

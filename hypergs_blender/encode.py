@@ -13,7 +13,9 @@ or a cell size. `encoder_layout` plans either.
 
 `EncodePlan` is the one streaming encode of a video (decode -> encode -> refine, chunk by chunk, with
 progress, cancel and the PSNR of sampled frames) that `hypergs encode`, Blender's conversions and the
-benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, the benches).
+benches run; `encode_frames` encodes frames already in memory (`hypergs eval`, the benches). A long
+refinement by the conv network starts from a content-adaptive placement of the count (`refine_frames`,
+placement.py).
 
 Encoders: the trained networks through torch or onnxruntime (network.py), and the grid floor that
 every model must beat (`FloorEncoder`). Each has `name`, `tile_borders`, `release` and
@@ -34,6 +36,7 @@ from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
+from .placement import SPLIT_FRACTION, choose_start, split_may_pay
 from .render import render_params
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
@@ -52,6 +55,12 @@ QUALITY = {  # cell size in source pixels and refine steps of each quality prese
     "high": dict(cell=4.0, refine=30),
 }
 DEFAULT_QUALITY = "standard"
+# A refinement this long starts from the content-adaptive placement (placement.py). Session 29 (256², N = 1000,
+# dev / held-out clips, without placement.choose_start's check; the split against the grid): refine 1 (the
+# least-squares colours alone) 28.30 against 28.75 dB on the dev clips, refine 10 29.37 / 32.49 against 29.22 /
+# 33.19, refine 20 30.37 / 34.12 against 29.95 / 33.74, refine 30 31.20 / 35.36 against 30.60 / 34.24, refine 50
+# 32.23 / 36.49 against 31.37 / 34.85.
+ADAPTIVE_MIN_REFINE = 20
 MODELS = ("conv", "transformer")  # the designs a user chooses between (network.DEFAULT_NAMES names their weights)
 
 
@@ -269,11 +278,12 @@ class EncodeCost:
     # predict_s_per_window + predict_s_per_gaussian n + predict_s_per_pair n^2 (its query attention).
     predict_s_per_window: float = 0.0
     predict_s_per_pair: float = 0.0
+    content_adaptive: bool = False  # a long refinement runs the encoder twice more (adaptive_start)
 
 
 ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "transformer" (both backends)
     "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
-    "network": EncodeCost(predict_s_per_gaussian=7.4e-6, cache_bytes_per_gaussian=12.4),
+    "network": EncodeCost(predict_s_per_gaussian=7.4e-6, cache_bytes_per_gaussian=12.4, content_adaptive=True),
     # The `small` preset (canvas 128, clips of 4 frames), onnxruntime on one thread, 4 frames of 256 x 256
     # in 1 or 9 windows at 256 / 1024 / 3025 per window: 0.033 / 0.088 / 0.39 CPU s per window and
     # frame (three trainings ran beside).
@@ -307,6 +317,8 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
                              + cost.predict_s_per_pair * per_window ** 2)
     else:
         predict = cost.predict_s_per_gaussian * n
+        if refine >= ADAPTIVE_MIN_REFINE and cost.content_adaptive and layout.cell > layout.stride:
+            predict *= 1 + 5 * SPLIT_FRACTION  # adaptive_start's runs at most: the coarse one (f) and the fine (4f)
     refine_s = 0.0
     if refine > 0:
         refine_s = n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
@@ -363,9 +375,27 @@ def working_frames(frames: np.ndarray, width: int, height: int) -> np.ndarray:
 
 def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
-    steps against the frames (refine.refine_params, needs torch) when asked. Frames go to the encoder
-    as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame; whole clips
-    of the transformer's `clip_frames`): memory does not grow with T (16 working frames of 1080p at
+    steps against the frames when asked (`refine_frames`)."""
+    params = predict_frames(frames, encoder, layout)
+    return refine_frames(frames, encoder, layout, params, refine) if refine else params
+
+
+def refine_frames(frames: np.ndarray, encoder, layout: Layout, params: np.ndarray, steps: int, device: str = "cpu",
+                  adaptive: bool = True) -> np.ndarray:
+    """The encoder's params [T, layout.count, 8] of uint8 frames [T, H, W, 3] refined `steps` steps against
+    them (refine.refine_params, needs torch). A refinement of at least ADAPTIVE_MIN_REFINE steps by the conv
+    network starts from the content-adaptive placement where it pays (`adaptive_start`; `adaptive=False`:
+    from `params`, the network's grid)."""
+    if adaptive and steps >= ADAPTIVE_MIN_REFINE and getattr(encoder, "content_adaptive", False):
+        params = adaptive_start(frames, encoder, layout, params)
+    from .refine import refine_params
+    return refine_params(params, frames, steps, device=device)
+
+
+def predict_frames(frames: np.ndarray, encoder, layout: Layout) -> np.ndarray:
+    """uint8 frames [T, H, W, 3] -> the encoder's params [T, layout.count, 8] on the W x H canvas. Frames go
+    to the encoder as float32 working frames of at most BATCH_PIXELS pixels at a time (at least one frame;
+    whole clips of the transformer's `clip_frames`): memory does not grow with T (16 working frames of 1080p at
     Standard were 700 MB as float32), and the network's own passes are no larger."""
     clip = getattr(encoder, "clip_frames", 1)
     per_pass = max(1, BATCH_PIXELS // (layout.work_width * layout.work_height * clip)) * clip
@@ -376,9 +406,36 @@ def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) 
     tx, ty = layout.width / layout.work_width, layout.height / layout.work_height
     if (tx, ty) != (1, 1):
         params = stretch_params(params, tx, ty)
-    if refine:
-        from .refine import refine_params
-        params = refine_params(params, frames, refine)
+    return params
+
+
+def adaptive_start(frames: np.ndarray, encoder, layout: Layout, grid: np.ndarray) -> np.ndarray:
+    """The start of a refinement (placement.py): for the frames whose grid (the encoder's params [T,
+    layout.count, 8] on `layout`) renders below placement.SPLIT_MAX_PSNR, the encoder's runs at SPLIT_FRACTION
+    of the count and at half that cell, split where the coarse run's render errs most, where that pays
+    (placement.choose_start); else the grid. Near the finest cell, where the fine run would hold no more than
+    the count, the grid."""
+    h, w = frames.shape[1:3]
+    coarse_layout = encoder_layout(encoder, w, h, gaussians=max(1, round(SPLIT_FRACTION * layout.count)))
+    fine_layout = encoder_layout(encoder, w, h, cell=coarse_layout.cell / 2)
+    if not coarse_layout.count < layout.count < fine_layout.count:
+        return grid
+
+    def render(params):
+        return render_params(params, w, h, w, h)
+
+    def target(i):  # a frame at a time: a chunk's float frames would be 25 MB each at 1080p
+        return frames[i] / np.float32(255)
+
+    picked = [i for i in range(len(frames)) if split_may_pay(render(grid[i]), target(i))]
+    if not picked:
+        return grid
+    coarse = predict_frames(frames[picked], encoder, coarse_layout)
+    fine = predict_frames(frames[picked], encoder, fine_layout)
+    params = grid.copy()
+    for j, i in enumerate(picked):
+        params[i] = choose_start(grid[i], coarse[j], fine[j], target(i), coarse_layout.cols, coarse_layout.rows,
+                                 render)
     return params
 
 

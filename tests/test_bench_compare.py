@@ -1,5 +1,5 @@
 """bench vs-fit / vs-x265 / scale / plots (hypergs_blender/bench/): the matched-PSNR and
-matched-quality interpolation, refine_ladder against refine.refine_params, the reports' JSON shape on a tiny synthetic video with tiny settings, and the scale bench's bounded memory."""
+matched-quality interpolation, refine_ladder against encode.refine_frames, the reports' JSON shape on a tiny synthetic video with tiny settings, and the scale bench's bounded memory."""
 from __future__ import annotations
 
 import json
@@ -12,10 +12,9 @@ import pytest
 from conftest import write_video
 from hypergs_blender.bench import common, plots, scale, vs_fit, vs_x265
 from hypergs_blender.commands.cli import build_parser
-from hypergs_blender.encode import FloorEncoder, encode_frames, frames_layout
+from hypergs_blender.encode import FloorEncoder, encode_frames, frames_layout, refine_frames
 from hypergs_blender.io.codec import clip_bits
 from hypergs_blender.errors import HyperGSError
-from hypergs_blender.refine import refine_params
 from hypergs_blender.io.hgs import HgsReader
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -231,13 +230,15 @@ def test_least_squares_colours_against_a_dense_solve():
     assert LS_ITERATIONS < n  # so the second check is not the first
 
 
-def test_refine_ladder_matches_refine_params(tiny_video):
-    """The bench times every K as its own run; each K must equal refine_params(K)."""
+def test_refine_ladder_matches_the_products_refinement(tiny_video):
+    """The bench times every K as its own run; each K must equal encode.refine_frames(K), the product's path."""
     frames, _, _ = common.load_frames(tiny_video, 4, 32)
-    params = encode_frames(frames, FloorEncoder(), frames_layout(frames, FloorEncoder(), gaussians=16))
-    ladder = vs_fit.refine_ladder(params, frames, (1, 4))
+    floor = FloorEncoder()
+    layout = frames_layout(frames, floor, gaussians=16)
+    params = encode_frames(frames, floor, layout)
+    ladder = vs_fit.refine_ladder(frames, floor, layout, params, (1, 4))
     for k, refined, seconds in ladder:
-        np.testing.assert_allclose(refined, refine_params(params, frames, k), atol=2e-4)
+        np.testing.assert_allclose(refined, refine_frames(frames, floor, layout, params, k), atol=2e-4)
         assert seconds > 0
     assert not np.allclose(ladder[0][1], ladder[1][1])  # 3 Adam steps did move something
     before = common.psnr_of(common.render(params, 32, 32), frames).mean()

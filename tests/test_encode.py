@@ -162,7 +162,8 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
 
 
 def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
-    from hypergs_blender.encode import ENCODE_COSTS, THREAD_GAIN, estimate, plan_layout
+    from hypergs_blender.encode import ADAPTIVE_MIN_REFINE, ENCODE_COSTS, THREAD_GAIN, estimate, plan_layout
+    from hypergs_blender.placement import SPLIT_FRACTION
     small, large = plan_layout(432, 240, 4, cell=8.0), plan_layout(864, 480, 4, cell=8.0)
     assert large.count == 4 * small.count
     a, b = estimate(small, 10), estimate(large, 10)
@@ -175,18 +176,25 @@ def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
     assert a.cache_bytes == small.count * 10 * cost.cache_bytes_per_gaussian
     refined = estimate(small, 10, refine=30)
     step = cost.refine_first_s_per_gaussian + 29 * cost.refine_s_per_gaussian_step
-    assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step)
+    predict = cost.predict_s_per_gaussian * small.count * 10
+    adaptive = predict * 5 * SPLIT_FRACTION  # a long refinement's start runs the network at f and 4f of the count
+    assert refined.seconds - a.seconds == pytest.approx(small.count * 10 * step + adaptive)
+    short = ADAPTIVE_MIN_REFINE - 1  # a shorter one starts from the grid, as does one at the finest cell
+    assert estimate(small, 10, refine=short).seconds - a.seconds == pytest.approx(
+        small.count * 10 * (cost.refine_first_s_per_gaussian + (short - 1) * cost.refine_s_per_gaussian_step))
+    finest = plan_layout(432, 240, 4, cell=4.0)
+    assert estimate(finest, 10, refine=30).seconds - estimate(finest, 10).seconds == pytest.approx(
+        finest.count * 10 * step)
     assert estimate(small, 10, encoder="floor").seconds < a.seconds  # the network costs more
     # More threads speed up the network's pass and refinement, by THREAD_GAIN per thread, and nothing else (the
     # floor, decoding, writing); the estimate says what it assumed.
     two = estimate(small, 10, threads=2)
-    predict = cost.predict_s_per_gaussian * small.count * 10
     assert two.threads == 2 and a.threads == 1
     assert a.seconds - two.seconds == pytest.approx(predict - predict / (1 + THREAD_GAIN))
     assert estimate(small, 10, encoder="floor", threads=2).seconds == estimate(small, 10, encoder="floor").seconds
     refining = small.count * 10 * step
     assert refined.seconds - estimate(small, 10, refine=30, threads=2).seconds == pytest.approx(
-        (predict + refining) * (1 - 1 / (1 + THREAD_GAIN)))
+        (predict + adaptive + refining) * (1 - 1 / (1 + THREAD_GAIN)))
     floor = estimate(small, 10, refine=30, encoder="floor").seconds
     assert floor - estimate(small, 10, refine=30, encoder="floor", threads=2).seconds == pytest.approx(
         refining * (1 - 1 / (1 + THREAD_GAIN)))

@@ -6,6 +6,9 @@ keep the total at the uniform layout's count. Measured like `hypergs eval --gaus
 --size 256` (its frame sampling, metrics.psnr, the numpy renderer), with and without the least-squares
 colours that refinement starts with (refine.least_squares_colours: `hypergs encode --refine 1` at its
 default 10 iterations), and (--ceiling) the PSNR of a seamless split, the ideal composite.
+The product's placement (hypergs_blender/placement.py, session 29) is this tool's `error` score at f = 0.6 without
+a seam fix, its few Gaussians short of the count taken from the next cell rather than halves, taken only where
+the ideal composite pays, and only for a refinement: `--refine 50 --ls 0.6:error` measures it without that check.
 
     OMP_NUM_THREADS=1 .venv/bin/python tools/adaptive_split.py VIDEOS... --gaussians 1000 --json out.json
 """
@@ -22,25 +25,11 @@ from hypergs_blender import metrics
 from hypergs_blender.encode import encode_frames, frames_layout, encoder_layout
 from hypergs_blender.evaluate import read_eval_frames, warm_up
 from hypergs_blender.network import resolve_encoder
+from hypergs_blender.placement import owner_cells, pixel_cells
 from hypergs_blender.refine import least_squares_colours, refine_params
 from hypergs_blender.render import render_params
 
 SCORES = ("error", "diff", "gain")
-
-
-def cell_index(x: np.ndarray, y: np.ndarray, cols: int, rows: int) -> np.ndarray:
-    """The coarse cell (row-major) of points at [-1, 1] coordinates x, y (outside the canvas: the
-    nearest cell)."""
-    ix = np.clip(np.floor((x + 1) / 2 * cols), 0, cols - 1).astype(np.int64)
-    iy = np.clip(np.floor((y + 1) / 2 * rows), 0, rows - 1).astype(np.int64)
-    return iy * cols + ix
-
-
-def pixel_cells(w: int, h: int, cols: int, rows: int) -> np.ndarray:
-    """The cell (row-major on cols x rows) of each pixel centre of a w x h image -> [h, w]."""
-    ys = (np.arange(h) + 0.5) / h * 2 - 1
-    xs = (np.arange(w) + 0.5) / w * 2 - 1
-    return cell_index(xs[None, :], ys[:, None], cols, rows)
 
 
 def cell_sums(image_error: np.ndarray, cols: int, rows: int) -> np.ndarray:
@@ -59,7 +48,7 @@ def split_cells(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: i
     its colour (the same render). Also returns the split mask per coarse cell and, per output Gaussian,
     whether it is a fine one and its weight (0.5 for the halves)."""
     nc = len(coarse)
-    owner = cell_index(fine[:, 0], fine[:, 1], cols, rows)
+    owner = owner_cells(fine, cols, rows)
     counts = np.bincount(owner, minlength=nc)
     order = np.argsort(-score, kind="stable")
     totals = nc + np.cumsum(counts[order] - 1)

@@ -71,7 +71,7 @@ def bench_designs(videos, conv, transformer, gaussians=DEFAULT_GAUSSIANS, grids=
             seconds, params = timed_encode(clip, conv, layout, device)
             result = {"n": n, "floor_bilinear": bilinear_floor_psnr(clip, layout.count),
                       "conv": _measure(params, clip, seconds, device), "refine": [], "transformer": {}}
-            for k, refined, took in refine_ladder(params, clip, refine_steps, device):
+            for k, refined, took in refine_ladder(clip, conv, layout, params, refine_steps, device):
                 result["refine"].append(dict(_measure(refined, clip, seconds + took / len(clip), device), k=k))
             for g in grids:
                 tiled = frames_layout(clip, transformer, gaussians=max(1, round(n / g ** 2)), grid=(g, g))

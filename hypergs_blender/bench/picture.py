@@ -13,7 +13,6 @@ from ..io.frames import read_frames
 from ..io.images import resize_exact
 from ..metrics import psnr
 from ..network import resolve_encoder
-from ..refine import refine_params
 from ..render import render_params
 from .common import machine_report, timed
 
@@ -38,8 +37,7 @@ def bench_presets(video, presets=tuple(QUALITY), width: int = 864, height: int =
         layout = frames_layout(source, encoder, cell=setting["cell"])
 
         def encode():
-            params = encode_frames(source, encoder, layout)
-            return refine_params(params, source, setting["refine"]) if setting["refine"] else params
+            return encode_frames(source, encoder, layout, setting["refine"])
         encode()  # warm-up (JIT, shapes)
         seconds, params = timed(encode)
         rendered = render_params(params, w, h, width, height)

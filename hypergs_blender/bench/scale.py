@@ -171,7 +171,8 @@ def _scale_worker(spec: dict) -> dict:
         warm_up(encoder)
         if spec.get("refine"):
             blank = np.zeros((1, 32, 32, 3), np.uint8)
-            refine_ladder(encode_frames(blank, encoder, frames_layout(blank, encoder, gaussians=16)), blank, (2,), device)
+            layout = frames_layout(blank, encoder, gaussians=16)
+            refine_ladder(blank, encoder, layout, encode_frames(blank, encoder, layout), (2,), device)
         startup_peak = _peak_rss_mb()
         reset = _reset_peak_rss()
         baseline = _rss_mb() or _peak_rss_mb()

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..encode import FloorEncoder, encode_frames, frames_layout
+from ..encode import FloorEncoder, encode_frames, frames_layout, refine_frames
 from ..network import resolve_encoder
-from ..refine import ADAM_EPS, FIT_WARMUP, REFINE_DECAY, REFINE_WARMUP, fit, random_init, refine_params
+from ..refine import ADAM_EPS, FIT_WARMUP, REFINE_DECAY, REFINE_WARMUP, fit, random_init
 from ..refine import refine_steps as refine_step_sizes
 from .common import (BOUND_TEXT, DEFAULT_GAUSSIANS, load_frames, machine_report, parse_frames, psnr_of, render,
                      resolve_device, say, sync)
@@ -26,15 +26,17 @@ DEFAULT_SIZES = ("256", "crop480")
 FIT_INITS = ("random", "grid")
 
 
-def refine_ladder(params: np.ndarray, frames: np.ndarray, steps=DEFAULT_REFINE_STEPS, device: str = "cpu"):
-    """refine.refine_params(params, frames, K) for every K in `steps`, each its own run (the step size
-    depends on K: refine.refine_steps), timed. Returns [(K, refined params [T, N, 8] numpy, seconds)] in
-    the order of `steps`."""
+def refine_ladder(frames: np.ndarray, encoder, layout, params: np.ndarray, steps=DEFAULT_REFINE_STEPS,
+                  device: str = "cpu"):
+    """encode.refine_frames of the encoder's params on `layout` for every K in `steps`, each its own run (the
+    step size depends on K: refine.refine_steps; from K = encode.ADAPTIVE_MIN_REFINE the start is the
+    content-adaptive placement's, whose work is timed with it), timed. Returns [(K, refined params [T, N, 8]
+    numpy, seconds)] in the order of `steps`."""
     out = []
     for k in steps:
         sync(device)
         started = time.perf_counter()
-        refined = refine_params(params, frames, k, device=device)
+        refined = refine_frames(frames, encoder, layout, params, k, device=device)
         sync(device)
         out.append((k, refined, time.perf_counter() - started))
     return out
@@ -100,8 +102,9 @@ def fit_psnr_at(seconds: float, fit_points) -> float | None:
 def warm_up(frames: np.ndarray, encoder, device: str) -> None:
     """Compile/initialise every code path once (numba JIT, torch kernels) on tiny work."""
     small = frames[:1, :32, :32]
-    params = encode_frames(small, encoder, frames_layout(small, encoder, gaussians=16))
-    refine_ladder(params, small, (2,), device)
+    layout = frames_layout(small, encoder, gaussians=16)
+    params = encode_frames(small, encoder, layout)
+    refine_ladder(small, encoder, layout, params, (2,), device)
     fit_from(small, 16, 2, "grid", device)
     render(params, 32, 32, device)
 
@@ -176,7 +179,7 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
                        "refine": [], "matched": []}
                 if refine_steps:
                     say(progress, f"{label}: refine {refine_steps}")
-                    for k, refined, seconds in refine_ladder(params, clip, refine_steps, device):
+                    for k, refined, seconds in refine_ladder(clip, encoder, layout, params, refine_steps, device):
                         q = float(np.mean(psnr_of(render(refined, w, h, device), clip)))
                         row["refine"].append({"k": k, "seconds": ff_seconds + seconds / t, "refine_seconds": seconds / t,
                                               "psnr": q, "gain_db": q - row["feedforward"]["psnr"]})

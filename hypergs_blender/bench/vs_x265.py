@@ -106,7 +106,7 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                 variants = [(0, params, 0.0)] if 0 in ks else []
                 if any(k > 0 for k in ks):
                     say(progress, f"{Path(path).name}: N={n} refine {[k for k in ks if k > 0]}")
-                    variants += refine_ladder(params, clip, [k for k in ks if k > 0], device)
+                    variants += refine_ladder(clip, encoder, layout, params, [k for k in ks if k > 0], device)
                 for k, p, refine_s in variants:
                     say(progress, f"{Path(path).name}: N={n} refine {k}: .hgs at {list(bits)} bits")
                     render_s, rendered = timed(lambda: render(p, w, h, device), decode_repeats)

@@ -208,6 +208,7 @@ class EncodeSettings:
     note: str = ""  # why the settings differ from what was asked (refining needs PyTorch)
     grid: tuple[int, int] | None = None
     model: str = MODELS[0]
+    adaptive: bool = True  # a long refinement starts from the content-adaptive placement (False: the grid)
 
     @classmethod
     def choose(cls, quality: str | None = None, gaussians: int | None = None, cell: float | None = None,
@@ -373,11 +374,12 @@ def working_frames(frames: np.ndarray, width: int, height: int) -> np.ndarray:
     return work
 
 
-def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0) -> np.ndarray:
+def encode_frames(frames: np.ndarray, encoder, layout: Layout, refine: int = 0, adaptive: bool = True) -> np.ndarray:
     """uint8 frames [T, H, W, 3] -> params [T, layout.count, 8] on the W x H canvas, refined `refine`
-    steps against the frames when asked (`refine_frames`)."""
+    steps against the frames when asked (`refine_frames`, from the content-adaptive start unless `adaptive`
+    is False)."""
     params = predict_frames(frames, encoder, layout)
-    return refine_frames(frames, encoder, layout, params, refine) if refine else params
+    return refine_frames(frames, encoder, layout, params, refine, adaptive=adaptive) if refine else params
 
 
 def refine_frames(frames: np.ndarray, encoder, layout: Layout, params: np.ndarray, steps: int, device: str = "cpu",
@@ -518,7 +520,7 @@ class EncodePlan:
                 raise Cancelled("encoding cancelled")
 
         def encode(frames):
-            params = encode_frames(frames, self.encoder, self.layout, self.settings.refine)
+            params = encode_frames(frames, self.encoder, self.layout, self.settings.refine, self.settings.adaptive)
             for i in sorted(p - done for p in measured if done <= p < done + len(frames)):
                 self.psnr_values.append(self.frame_psnr(params[i], frames[i]))
             return frames, params

@@ -48,7 +48,8 @@ def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> di
     """Encode uint8 frames [T, H, W, 3] with `settings`, render them at H x W, and measure."""
     t, h, w = source.shape[:3]
     layout = settings.layout(w, h, encoder)
-    rendered, encode_seconds, decode_seconds = encode_render(source, encoder, layout, settings.refine)
+    rendered, encode_seconds, decode_seconds = encode_render(source, encoder, layout, settings.refine,
+                                                             settings.adaptive)
     target = source / np.float32(255)
     xs, ys = encoder.tile_borders(layout.work_width, layout.work_height)
     sx, sy = w / layout.work_width, h / layout.work_height
@@ -65,12 +66,14 @@ def evaluate_frames(source: np.ndarray, encoder, settings: EncodeSettings) -> di
                 encode_fps=t / encode_seconds, decode_fps=t / decode_seconds)
 
 
-def encode_render(source: np.ndarray, encoder, layout, refine: int = 0) -> tuple[np.ndarray, float, float]:
-    """Encode uint8 frames [T, H, W, 3] on `layout` (refined `refine` steps) and render them at H x W:
+def encode_render(source: np.ndarray, encoder, layout, refine: int = 0,
+                  adaptive: bool = True) -> tuple[np.ndarray, float, float]:
+    """Encode uint8 frames [T, H, W, 3] on `layout` (refined `refine` steps, from the content-adaptive start unless
+    `adaptive` is False: encode.refine_frames) and render them at H x W:
     (renders float32 [T, H, W, 3], unclipped; encode seconds; render seconds)."""
     h, w = source.shape[1:3]
     started = time.perf_counter()
-    params = encode_frames(source, encoder, layout, refine)
+    params = encode_frames(source, encoder, layout, refine, adaptive)
     encode_seconds = time.perf_counter() - started
     started = time.perf_counter()
     rendered = render_params(params, w, h, w, h)
@@ -82,7 +85,7 @@ def evaluate_temporal(source: np.ndarray, encoder, settings: EncodeSettings) -> 
     differences (metrics.delta_psnr) next to the per-frame PSNR of the same frames, and the render's
     change where the source is still (metrics.still_change)."""
     h, w = source.shape[1:3]
-    rendered, _, _ = encode_render(source, encoder, settings.layout(w, h, encoder), settings.refine)
+    rendered, _, _ = encode_render(source, encoder, settings.layout(w, h, encoder), settings.refine, settings.adaptive)
     target = source / np.float32(255)
     return dict(frames=len(source), psnr=float(np.mean(metrics.psnr(rendered, target))),
                 delta_psnr=metrics.delta_psnr(rendered, target), still_change=metrics.still_change(rendered, target))

@@ -154,3 +154,18 @@ def test_only_a_long_enough_refinement_by_the_network_starts_from_the_adaptive_p
     finest = frames_layout(frames, encoder, cell=4)
     grid = predict_frames(frames, encoder, finest)
     assert adaptive_start(frames, encoder, finest, grid) is grid
+
+
+def test_eval_refines_from_the_adaptive_start_unless_asked_for_the_uniform_one(tmp_path, capsys):
+    import json
+
+    from conftest import write_video
+    from hypergs_blender.commands.cli import main
+    video = write_video(tmp_path / "half.mp4", half_detailed_frames(t=2))
+    reports = {}
+    for flag in ([], ["--uniform-start"]):
+        main(["eval", str(video), "--full", "--gaussians", "288", "--refine", str(ADAPTIVE_MIN_REFINE), "--frames", "1",
+              "--temporal-frames", "0", "--json", *flag])
+        report = json.loads(capsys.readouterr().out)
+        reports[report["adaptive_start"]] = report["mean"]["psnr"]
+    assert set(reports) == {True, False} and reports[True] != reports[False]

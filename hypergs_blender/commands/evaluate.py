@@ -68,7 +68,7 @@ def run(args) -> None:
                                                   **{k: float(np.average([c[k] for c in still], weights=weights))
                                                      if still else None for k in ("source", "render")}))
     report = dict(encoder=encoder.name, density=dict(gaussians=settings.gaussians, cell=settings.cell, grid=settings.grid),
-                  refine=settings.refine,
+                  refine=settings.refine, adaptive_start=settings.adaptive,
                   frames_from=("native" if args.native else "full" if args.full else f"crop {args.crop}" if args.crop
                                else f"size {args.size}"),
                   frames=args.frames, temporal_frames=args.temporal_frames, videos=rows, mean=mean)

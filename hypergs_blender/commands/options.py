@@ -12,10 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 from .. import limits
-from ..encode import DEFAULT_QUALITY, QUALITY, EncodeSettings
+from ..encode import ADAPTIVE_MIN_REFINE, DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
 from ..network import BACKENDS, WEIGHTS_DIR, resolve_encoder
@@ -413,6 +414,9 @@ def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
     group.add_argument("--cell", type=positive_float, default=None, help="source pixels per Gaussian cell side")
     parser.add_argument("--refine", type=non_negative_int, default=None,
                         help="per-frame refinement steps after the prediction (default: the preset's, else 0)")
+    parser.add_argument("--uniform-start", action="store_true",
+                        help=f"refine from the network's grid of cells, not from its content-adaptive start (which "
+                             f"a refinement of {ADAPTIVE_MIN_REFINE} steps or more takes where it pays; for comparisons)")
     parser.add_argument("--grid", type=patch_grid, default=None,
                         help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
                              "at the frame's resolution)")
@@ -420,8 +424,9 @@ def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
 
 
 def settings_from_args(args) -> EncodeSettings:
-    return EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine, default=args.default_quality,
-                                 grid=args.grid)
+    settings = EncodeSettings.choose(args.quality, args.gaussians, args.cell, args.refine,
+                                     default=args.default_quality, grid=args.grid)
+    return replace(settings, adaptive=not args.uniform_start)
 
 
 def encoder_from_args(args, device=None):

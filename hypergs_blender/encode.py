@@ -36,7 +36,7 @@ from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
 from .io.frames import iter_frames, probe, sample_indices
 from .io.images import resize_exact
-from .placement import SPLIT_FRACTION, choose_start, split_may_pay
+from .placement import SPLIT_FRACTION, choose_start, pixel_errors, split_may_pay
 from .render import render_params
 
 Progress = Callable[[int, int], bool]  # (frames done, frames total) -> False to cancel
@@ -429,15 +429,16 @@ def adaptive_start(frames: np.ndarray, encoder, layout: Layout, grid: np.ndarray
     def target(i):  # a frame at a time: a chunk's float frames would be 25 MB each at 1080p
         return frames[i] / np.float32(255)
 
-    picked = [i for i in range(len(frames)) if split_may_pay(render(grid[i]), target(i))]
+    grid_errors = [float(pixel_errors(render(grid[i]), target(i)).sum()) for i in range(len(frames))]
+    picked = [i for i in range(len(frames)) if split_may_pay(grid_errors[i], target(i))]
     if not picked:
         return grid
     coarse = predict_frames(frames[picked], encoder, coarse_layout)
     fine = predict_frames(frames[picked], encoder, fine_layout)
     params = grid.copy()
     for j, i in enumerate(picked):
-        params[i] = choose_start(grid[i], coarse[j], fine[j], target(i), coarse_layout.cols, coarse_layout.rows,
-                                 render)
+        params[i] = choose_start(grid[i], grid_errors[i], coarse[j], fine[j], target(i), coarse_layout.cols,
+                                 coarse_layout.rows, render)
     return params
 
 

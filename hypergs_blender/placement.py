@@ -44,10 +44,15 @@ def pixel_cells(width: int, height: int, cols: int, rows: int) -> np.ndarray:
     return iy[:, None] * cols + ix[None, :]
 
 
-def cell_errors(rendered: np.ndarray, target: np.ndarray, cols: int, rows: int) -> np.ndarray:
+def pixel_errors(rendered: np.ndarray, target: np.ndarray) -> np.ndarray:
     """The squared error of a render (clipped to [0, 1], as a viewer shows it) against float target [H, W, 3],
-    summed over each cell of a cols x rows grid -> float64 [cols * rows]."""
-    error = ((np.clip(rendered, 0, 1) - target) ** 2).sum(-1)
+    summed over the channels -> [H, W]."""
+    return ((np.clip(rendered, 0, 1) - target) ** 2).sum(-1)
+
+
+def cell_errors(rendered: np.ndarray, target: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """`pixel_errors` summed over each cell of a cols x rows grid -> float64 [cols * rows]."""
+    error = pixel_errors(rendered, target)
     h, w = error.shape
     return np.bincount(pixel_cells(w, h, cols, rows).ravel(), error.ravel(), cols * rows)
 
@@ -86,19 +91,18 @@ def split_frame(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: i
     return np.concatenate(parts), split
 
 
-def split_may_pay(grid_render: np.ndarray, target: np.ndarray) -> bool:
-    """Whether a frame (float [H, W, 3] in [0, 1]) whose grid renders as `grid_render` is below SPLIT_MAX_PSNR
-    (the render clipped to [0, 1]): only then are the coarse and fine runs worth making (`choose_start`)."""
-    error = float(((np.clip(grid_render, 0, 1) - target) ** 2).mean())
-    return error > 10 ** (-SPLIT_MAX_PSNR / 10)  # PSNR = 10 log10(1 / mean squared error)
+def split_may_pay(grid_error: float, target: np.ndarray) -> bool:
+    """Whether a frame (float [H, W, 3] in [0, 1]) whose grid renders with `grid_error` (`pixel_errors`, summed)
+    is below SPLIT_MAX_PSNR: only then are the coarse and fine runs worth making (`choose_start`)."""
+    return grid_error > target.size * 10 ** (-SPLIT_MAX_PSNR / 10)  # PSNR = 10 log10(1 / mean squared error)
 
 
-def choose_start(grid: np.ndarray, coarse: np.ndarray, fine: np.ndarray, target: np.ndarray, cols: int, rows: int,
-                 render) -> np.ndarray:
+def choose_start(grid: np.ndarray, grid_error: float, coarse: np.ndarray, fine: np.ndarray, target: np.ndarray,
+                 cols: int, rows: int, render) -> np.ndarray:
     """One frame's start: the split (`split_frame` of the coarse run's params on its cols x rows cells and the
-    fine run's, the coarse cells scored by their render's error) where it pays, else the grid's params [N, 8].
-    target: the frame, float [H, W, 3] in [0, 1]; render: params -> the frame's render."""
-    grid_error = cell_errors(render(grid), target, cols, rows).sum()
+    fine run's, the coarse cells scored by their render's error) where it pays, else the grid's params [N, 8]
+    (whose render errs by grid_error: `pixel_errors`, summed). target: the frame, float [H, W, 3] in [0, 1];
+    render: params -> the frame's render."""
     coarse_errors = cell_errors(render(coarse), target, cols, rows)
     split_params, split = split_frame(coarse, fine, coarse_errors, cols, rows, len(grid))
     seamless = np.where(split, cell_errors(render(fine), target, cols, rows), coarse_errors).sum()

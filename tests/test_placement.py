@@ -6,7 +6,7 @@ from hypergs_blender.encode import (ADAPTIVE_MIN_REFINE, adaptive_start, encode_
                                     predict_frames, refine_frames)
 from hypergs_blender.gaussians import grid_anchors
 from hypergs_blender.placement import (SPLIT_FRACTION, SPLIT_MAX_PSNR, SPLIT_MIN_GAIN_DB, cell_errors, choose_start,
-                                       owner_cells, split_frame, split_may_pay)
+                                       owner_cells, pixel_errors, split_frame, split_may_pay)
 from hypergs_blender.runtime import make_encoder
 
 
@@ -84,11 +84,9 @@ def test_the_split_is_taken_where_its_seamless_render_beats_the_grid_by_enough(g
         if params[0, 5] == 1.0:
             image[:, :4] += 0.2
             image[:, 4:] += 0.1
-        elif params[0, 5] == 3.0:
-            image += np.sqrt(grid_error / (h * w * 3))
         return image
 
-    start = choose_start(grid, coarse, fine, target, 2, 1, render)
+    start = choose_start(grid, grid_error, coarse, fine, target, 2, 1, render)
     assert start.shape == (3, 8)
     if taken:
         assert sorted(start[:, 5].tolist()) == [1.0, 2.0, 2.0]  # the right coarse cell, two of the left's fine
@@ -100,8 +98,8 @@ def test_only_a_frame_below_the_ceiling_may_split():
     target = np.full((8, 8, 3), 0.5, np.float32)
     for psnr, may in ((SPLIT_MAX_PSNR - 0.1, True), (SPLIT_MAX_PSNR + 0.1, False)):
         render = target + np.float32(10 ** (-psnr / 20))  # an error of that PSNR everywhere
-        assert split_may_pay(render, target) == may
-    assert not split_may_pay(np.full_like(target, 1.4), np.ones_like(target))  # clipped as a viewer shows it
+        assert split_may_pay(pixel_errors(render, target).sum(), target) == may
+    assert pixel_errors(np.full_like(target, 1.4), np.ones_like(target)).sum() == 0  # clipped as a viewer shows it
 
 
 def half_detailed_frames(t=2, h=96, w=192, seed=0):

@@ -10,8 +10,9 @@ user's, and the detail gets the Gaussians.
 Such a start is not seamless (the network was trained on uniform grids, and a coarse Gaussian's colour is
 its share of a sum with its coarse neighbours): unrefined it reads 23.7 dB where the uniform grid reads
 28.6 (dev clips, 256², N = 1000). Refinement's least-squares colours and Adam steps repair the borders, and
-then it is ahead: `--refine 50` 32.23 against 31.37 dB, 36.49 against 34.85 on the held-out pans (model
-card, session 29). So it is only ever a refinement's start (encode.encode_frames), and only where it pays
+then it is ahead: `hypergs eval --gaussians 1000 --refine 50` 32.21 against 31.37 dB, 36.41 against 34.85 on
+the held-out pans (model card, session 29). So it is only ever the start of a refinement of
+encode.ADAPTIVE_MIN_REFINE steps or more (encode.refine_frames), and only where it pays
 (`choose_start`): where the seamless split, each coarse cell rendered by the run it keeps, would beat the
 grid's render by SPLIT_MIN_GAIN_DB, and where the grid's render is below SPLIT_MAX_PSNR. On smooth frames at
 high PSNR refinement cannot repair the borders (a held-out 480² pan at Standard's density, `--refine 30`: the

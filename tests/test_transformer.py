@@ -274,3 +274,22 @@ def test_window_margins_are_whole_patches_beyond_a_quarter_of_the_canvas(preset)
     local = transformer_geometry(replace(cfg, parametrization="local"))
     assert local["margin"] % cfg.patch == 0 and cfg.canvas // 4 < local["margin"] < cfg.canvas // 2
     assert transformer_geometry(replace(cfg, parametrization="paper"))["margin"] == 0
+
+
+def test_model_takes_a_designs_name_as_blender_does(tmp_path):
+    """--model conv / transformer (Blender's names for the designs) stand for the names `hypergs export` gives
+    them, unless the folder holds a model of that very name."""
+    import argparse
+
+    from hypergs_blender.commands.options import weights_from_args
+    from hypergs_blender.network import WEIGHTS_DIR
+
+    def weights(model, folder=None):
+        return weights_from_args(argparse.Namespace(model=model, weights=folder))
+    assert weights("transformer") == WEIGHTS_DIR / "hypergs_transformer.json"
+    assert weights("conv") == WEIGHTS_DIR / "hypergs.json"
+    assert weights("hypergs_transformer") == WEIGHTS_DIR / "hypergs_transformer.json"
+    (tmp_path / "transformer.json").write_text("{}")
+    assert weights("transformer", tmp_path) == tmp_path / "transformer.json"  # the folder's own model wins
+    assert weights("conv", tmp_path) == tmp_path / "hypergs.json"  # and a missing one is reported by that name
+    assert resolve_encoder(weights=weights("transformer"), backend="onnx").name == "transformer-onnx"

@@ -19,7 +19,7 @@ from .. import limits
 from ..encode import ADAPTIVE_MIN_REFINE, DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
-from ..network import BACKENDS, WEIGHTS_DIR, resolve_encoder
+from ..network import BACKENDS, DEFAULT_NAMES, WEIGHTS_DIR, resolve_encoder
 
 BIGGEST = 1 << 31  # no count or size of ours goes past this: int32 everywhere
 
@@ -388,16 +388,22 @@ def add_model_arguments(parser) -> None:
     parser.add_argument("--weights", default=None, type=input_folder,
                         help="folder with <name>.json/.safetensors/.onnx (default: the bundled models)")
     parser.add_argument("--model", default=None, type=name,
-                        help="the model's name in that folder, e.g. hypergs_transformer (default: hypergs, or the "
-                             "folder's only model)")
+                        help="the model's name in that folder, e.g. hypergs_transformer, or a design as Blender's "
+                             "dialogs name it (conv, transformer: the name `hypergs export` gives it) (default: "
+                             "hypergs, or the folder's only model)")
 
 
 def weights_from_args(args):
     """What resolve_encoder loads for --weights and --model: the folder, or the named model's card in it
-    (default folder: the bundled models)."""
+    (default folder: the bundled models). A design's name (network.DEFAULT_NAMES: conv, transformer) stands
+    for the name `hypergs export` gives it, unless the folder holds a model of that very name."""
     if args.model is None:
         return args.weights
-    return Path(args.weights or WEIGHTS_DIR) / f"{args.model}.json"
+    folder = Path(args.weights or WEIGHTS_DIR)
+    card = folder / f"{args.model}.json"
+    if not card.is_file() and args.model in DEFAULT_NAMES:
+        card = folder / f"{DEFAULT_NAMES[args.model]}.json"
+    return card
 
 
 def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:

@@ -124,8 +124,8 @@ def test_the_adaptive_start_puts_the_gaussians_where_the_frame_has_detail():
     assert params.shape == (3, layout.count, 8) and np.isfinite(params).all()
     np.testing.assert_array_equal(params[2], grid[2])
     params, grid = params[:2], grid[:2]
-    # no cell of the flat half split: its Gaussians are the coarse run's there (half the grid's), and the
-    # noisy half has the rest
+    # no cell of the flat half split: its Gaussians are the coarse run's there (0.6 of the grid's), and the
+    # textured half has the rest
     coarse = encoder_layout(encoder, 192, 96, gaussians=round(SPLIT_FRACTION * layout.count))
     left = (params[..., 0] < 0).sum(axis=1)
     assert (left <= -(-coarse.cols // 2) * coarse.rows).all() and (left < 0.35 * layout.count).all(), left
@@ -143,7 +143,8 @@ def test_only_a_long_enough_refinement_by_the_network_starts_from_the_adaptive_p
     assert not np.array_equal(grid, adaptive)
     np.testing.assert_array_equal(encode_frames(frames, encoder, layout, ADAPTIVE_MIN_REFINE), adaptive)
     np.testing.assert_array_equal(encode_frames(frames, encoder, layout, ADAPTIVE_MIN_REFINE - 1), grid)
-    np.testing.assert_array_equal(refine_frames(frames, encoder, layout, grid, ADAPTIVE_MIN_REFINE, adaptive=False), grid)
+    np.testing.assert_array_equal(refine_frames(frames, encoder, layout, grid, ADAPTIVE_MIN_REFINE, adaptive=False),
+                                  grid)
     floor = encode.FloorEncoder()
     np.testing.assert_array_equal(encode_frames(frames, floor, frames_layout(frames, floor, gaussians=288),
                                                 ADAPTIVE_MIN_REFINE),

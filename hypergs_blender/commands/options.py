@@ -421,8 +421,8 @@ def add_settings_arguments(parser, default: str = DEFAULT_QUALITY) -> None:
     parser.add_argument("--refine", type=non_negative_int, default=None,
                         help="per-frame refinement steps after the prediction (default: the preset's, else 0)")
     parser.add_argument("--uniform-start", action="store_true",
-                        help=f"refine from the network's grid of cells, not from its content-adaptive start (which "
-                             f"a refinement of {ADAPTIVE_MIN_REFINE} steps or more takes where it pays; for comparisons)")
+                        help=f"refine from the network's grid of cells, not from its content-adaptive start (which a "
+                             f"refinement of {ADAPTIVE_MIN_REFINE} steps or more takes where it pays; for comparisons)")
     parser.add_argument("--grid", type=patch_grid, default=None,
                         help="the transformer's patch grid, G or COLSxROWS tiles (default: tiles of its canvas size "
                              "at the frame's resolution)")

@@ -429,10 +429,15 @@ def adaptive_start(frames: np.ndarray, encoder, layout: Layout, grid: np.ndarray
     def target(i):  # a frame at a time: a chunk's float frames would be 25 MB each at 1080p
         return frames[i] / np.float32(255)
 
-    grid_errors = [float(pixel_errors(render(grid[i]), target(i)).sum()) for i in range(len(frames))]
-    picked = [i for i in range(len(frames)) if split_may_pay(grid_errors[i], target(i))]
-    if not picked:
+    grid_errors = {}  # of the frames that may split
+    for i in range(len(frames)):
+        frame = target(i)
+        error = float(pixel_errors(render(grid[i]), frame).sum())
+        if split_may_pay(error, frame):
+            grid_errors[i] = error
+    if not grid_errors:
         return grid
+    picked = list(grid_errors)
     coarse = predict_frames(frames[picked], encoder, coarse_layout)
     fine = predict_frames(frames[picked], encoder, fine_layout)
     params = grid.copy()

@@ -51,11 +51,17 @@ def pixel_errors(rendered: np.ndarray, target: np.ndarray) -> np.ndarray:
     return ((np.clip(rendered, 0, 1) - target) ** 2).sum(-1)
 
 
+def cell_sums(values: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """Per-pixel values [..., H, W] summed over each cell of a cols x rows grid -> float64 [..., cols * rows]."""
+    h, w = values.shape[-2:]
+    cells = pixel_cells(w, h, cols, rows).ravel()
+    sums = [np.bincount(cells, v, cols * rows) for v in values.reshape(-1, h * w)]
+    return np.stack(sums).reshape(values.shape[:-2] + (cols * rows,))
+
+
 def cell_errors(rendered: np.ndarray, target: np.ndarray, cols: int, rows: int) -> np.ndarray:
     """`pixel_errors` summed over each cell of a cols x rows grid -> float64 [cols * rows]."""
-    error = pixel_errors(rendered, target)
-    h, w = error.shape
-    return np.bincount(pixel_cells(w, h, cols, rows).ravel(), error.ravel(), cols * rows)
+    return cell_sums(pixel_errors(rendered, target), cols, rows)
 
 
 def owner_cells(params: np.ndarray, cols: int, rows: int) -> np.ndarray:

@@ -25,18 +25,11 @@ from hypergs_blender import metrics
 from hypergs_blender.encode import encode_frames, frames_layout, encoder_layout
 from hypergs_blender.evaluate import read_eval_frames, warm_up
 from hypergs_blender.network import resolve_encoder
-from hypergs_blender.placement import owner_cells, pixel_cells
+from hypergs_blender.placement import cell_sums, owner_cells, pixel_cells
 from hypergs_blender.refine import least_squares_colours, refine_params
 from hypergs_blender.render import render_params
 
 SCORES = ("error", "diff", "gain")
-
-
-def cell_sums(image_error: np.ndarray, cols: int, rows: int) -> np.ndarray:
-    """Per-pixel error [T, H, W] summed over each of cols x rows cells -> [T, cols * rows]."""
-    t, h, w = image_error.shape
-    cells = pixel_cells(w, h, cols, rows).ravel()
-    return np.stack([np.bincount(cells, e.ravel(), cols * rows) for e in image_error])
 
 
 def split_cells(coarse: np.ndarray, fine: np.ndarray, score: np.ndarray, cols: int, rows: int,

@@ -279,7 +279,7 @@ class EncodeCost:
     # predict_s_per_window + predict_s_per_gaussian n + predict_s_per_pair n^2 (its query attention).
     predict_s_per_window: float = 0.0
     predict_s_per_pair: float = 0.0
-    content_adaptive: bool = False  # a long refinement runs the encoder twice more (adaptive_start)
+    content_adaptive: bool = False  # a long refinement starts from two more runs (adaptive_start_applies)
 
 
 ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "transformer" (both backends)
@@ -303,6 +303,16 @@ class Estimate:
     blend_bytes: float  # what the clip adds to the .blend (the frame its mesh holds)
 
 
+def adaptive_start_applies(encoder: str, layout: Layout, steps: int) -> bool:
+    """Whether a refinement of `steps` steps on `layout` by `encoder` (its name: "network-onnx", "floor", ...)
+    starts from the content-adaptive placement (`adaptive_start`): one of ADAPTIVE_MIN_REFINE steps or more by an
+    encoder whose cost says so (the conv network), above the finest cell, where the fine run would hold no more
+    than the count."""
+    cost = ENCODE_COSTS.get(encoder.partition("-")[0])
+    return (steps >= ADAPTIVE_MIN_REFINE and cost is not None and cost.content_adaptive
+            and layout.cell > layout.stride)
+
+
 def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
     name: "floor", "network-onnx", "transformer-onnx", ...) on `threads` CPU threads: time and size, from
@@ -318,7 +328,7 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
                              + cost.predict_s_per_pair * per_window ** 2)
     else:
         predict = cost.predict_s_per_gaussian * n
-        if refine >= ADAPTIVE_MIN_REFINE and cost.content_adaptive and layout.cell > layout.stride:
+        if adaptive_start_applies(encoder, layout, refine):
             predict *= 1 + 5 * SPLIT_FRACTION  # adaptive_start's runs at most: the coarse one (f) and the fine (4f)
     refine_s = 0.0
     if refine > 0:
@@ -388,7 +398,7 @@ def refine_frames(frames: np.ndarray, encoder, layout: Layout, params: np.ndarra
     them (refine.refine_params, needs torch). A refinement of at least ADAPTIVE_MIN_REFINE steps by the conv
     network starts from the content-adaptive placement where it pays (`adaptive_start`; `adaptive=False`:
     from `params`, the network's grid)."""
-    if adaptive and steps >= ADAPTIVE_MIN_REFINE and getattr(encoder, "content_adaptive", False):
+    if adaptive and adaptive_start_applies(encoder.name, layout, steps):
         params = adaptive_start(frames, encoder, layout, params)
     from .refine import refine_params
     return refine_params(params, frames, steps, device=device)

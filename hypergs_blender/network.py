@@ -78,10 +78,6 @@ class NetworkEncoder:
     any backend) over working frames of any size, tiled (see the module doc). stride, multiple and
     reach are the network's (model.ConvConfig)."""
 
-    # A refinement starts from two of its runs, split where the frame needs it (encode.adaptive_start); the floor
-    # and the transformer start from their grids.
-    content_adaptive = True
-
     def __init__(self, forward, stride: int, multiple: int, reach: int, name: str, tile: int = TILE,
                  session=None):
         self.forward, self.name, self.session = forward, name, session  # session: onnxruntime's, or None

@@ -434,7 +434,7 @@ class ConvGS(nn.Module):
             rendered = local_render(self.geometry(h, x), rows, cols, cfg.stride, n, cfg.error_reach)
             x = full_precision(x)
             target = F.avg_pool2d(x, cfg.stride // n) if n < cfg.stride else x
-            return F.pixel_unshuffle((target - rendered) * ERROR_GAIN, n)
+            return (F.pixel_unshuffle(target, n) - rendered) * ERROR_GAIN
 
 
 class ErrorPass(nn.Module):

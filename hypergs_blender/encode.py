@@ -254,15 +254,15 @@ class EncodeCost:
     """What encoding costs, per Gaussian per frame, for the estimate shown before an encode starts
     (Blender's dialogs): the wall time on an otherwise idle machine. Measured on the idle 2-core
     development machine, 1920 x 1080 at Standard (57,600 Gaussians): the network (round 3's with its error
-    pass at 4x4 points per cell, session 21, onnxruntime, opset 20) 0.424 s per frame on one thread, 0.26 s
-    on two (`hypergs bench encode --sizes 1080p --presets standard --backends onnx --threads 1|2`; session
-    20's 2x2-point error pass 0.36 / 0.24, without the error pass 0.286 / 0.193); decoding 0.04 s; writing
-    the frame cache 0.025 s; the floor 0.043 s. What these leave out (the frames' handling between decoder
-    and network) is in decode_s_per_pixel. The estimate without the error pass, 0.28 s per frame on two
-    threads, against whole conversions in Blender on the idle machine (`tools/long_clips.py --frames 30,300
-    --stages blender,cli`): 0.337 s per frame for 30 frames (start-up included), 0.223 for 300; with the
-    error pass it reads 0.36 s (not yet checked against whole conversions). Recalibrate when an encoder
-    changes (`tools/long_clips.py` prints the estimate beside the measured conversion)."""
+    pass at 4x4 points per cell and session 30's render, onnxruntime, opset 20) 0.395 s per frame on one
+    thread, 0.242-0.250 s on two (`hypergs bench encode --sizes 1080p --presets standard --backends onnx
+    --threads 1|2`; session 21's render 0.424 / 0.26, session 20's 2x2-point error pass 0.36 / 0.24, without
+    the error pass 0.286 / 0.193); decoding 0.04 s; writing the frame cache 0.025 s; the floor 0.043 s. What
+    these leave out (the frames' handling between decoder and network) is in decode_s_per_pixel. The
+    estimate, 0.342 s per frame on two threads, against whole conversions in Blender on the idle machine
+    (`tools/long_clips.py --frames 30,300 --stages blender,cli`, session 30): 0.378 s per frame for 30 frames
+    (start-up included), 0.317 for 300. Recalibrate when an encoder changes (`tools/long_clips.py` prints the
+    estimate beside the measured conversion)."""
     predict_s_per_gaussian: float  # the encoder's forward pass (with the resize to its working size), one thread
     cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
     threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
@@ -284,7 +284,7 @@ class EncodeCost:
 
 ENCODE_COSTS = {  # by encoder kind: "floor", "network" (the conv network) or "transformer" (both backends)
     "floor": EncodeCost(predict_s_per_gaussian=7.5e-7, cache_bytes_per_gaussian=6.0, threaded=False),
-    "network": EncodeCost(predict_s_per_gaussian=7.4e-6, cache_bytes_per_gaussian=12.4, content_adaptive=True),
+    "network": EncodeCost(predict_s_per_gaussian=6.9e-6, cache_bytes_per_gaussian=12.4, content_adaptive=True),
     # The `small` preset (canvas 128, clips of 4 frames), onnxruntime on one thread, 4 frames of 256 x 256
     # in 1 or 9 windows at 256 / 1024 / 3025 per window: 0.033 / 0.088 / 0.39 CPU s per window and
     # frame (three trainings ran beside).

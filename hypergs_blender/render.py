@@ -59,8 +59,8 @@ def local_render(params, rows: int, cols: int, stride: int, samples: int, reach:
     # per cell, what a point's exponent needs, with 1/2 folded in: exp(-(u^2 + v^2)) where
     # u = (x - mx) a, v = (y - my) d - c d u, a = 1 / (sqrt 2 l11), c d = l21 / l22, d = 1 / (sqrt 2 l22).
     # u depends on the point's column only and (y - my) d on its row only: both at `samples` points a
-    # cell, and only v and the exponential at all samples^2 (1.5x faster in onnxruntime than all at
-    # samples^2, which the error pass then spent a quarter of the network's time on)
+    # cell, and only v and the exponential at all samples^2 (the render 1.5x faster in onnxruntime than
+    # all of it at samples^2; its element-wise ops were a third of the network's time)
     root2 = math.sqrt(2.0)
     cells = torch.stack([means[..., 0], 1 / (root2 * chol[..., 0]), means[..., 1], chol[..., 1] / chol[..., 2],
                          1 / (root2 * chol[..., 2])], -1)

@@ -263,15 +263,14 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
         alone = torch.nn.functional.pixel_shuffle(local_render(params, rows, cols, stride, samples, reach=0), samples)
         assert float((alone - exact).abs().max()) > 0.1
         # and without the box: a sum over the cells within reach at each point, through each Gaussian's inverse covariance
-        reach = 2
         slow = torch.zeros(3, rows * samples, cols * samples, dtype=torch.float64)
         p = params[0].double()
         for i in range(rows * samples):
             for j in range(cols * samples):
                 point = (torch.tensor([j, i], dtype=torch.float64) + 0.5) * (stride / samples)
                 r, c = i // samples, j // samples
-                for nr in range(max(0, r - reach), min(rows, r + reach + 1)):
-                    for nc in range(max(0, c - reach), min(cols, c + reach + 1)):
+                for nr in range(max(0, r - 2), min(rows, r + 3)):
+                    for nc in range(max(0, c - 2), min(cols, c + 3)):
                         g = p[nr * cols + nc]
                         mean = (g[0:2] + 1) / 2 * torch.tensor([cols * stride, rows * stride], dtype=torch.float64)
                         rot = torch.tensor([[math.cos(g[4]), -math.sin(g[4])], [math.sin(g[4]), math.cos(g[4])]],
@@ -279,7 +278,7 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
                         cov = rot @ torch.diag(g[2:4] ** 2) @ rot.T
                         d = point - mean
                         slow[:, i, j] += g[5:8] * torch.exp(-0.5 * d @ torch.linalg.solve(cov, d))
-        fast = torch.nn.functional.pixel_shuffle(local_render(params.double(), rows, cols, stride, samples, reach), samples)
+        fast = torch.nn.functional.pixel_shuffle(local_render(params.double(), rows, cols, stride, samples, reach=2), samples)
         torch.testing.assert_close(fast[0], slow, atol=1e-9, rtol=0)
 
 

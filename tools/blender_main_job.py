@@ -69,7 +69,7 @@ def main_job(argv=None) -> int:
     if args.zip:
         zip_path = Path(args.zip)
     else:
-        zip_path = build_zip(ROOT / "dist")
+        zip_path = build_zip(out / "dist")  # its own folder: runs side by side do not build into one
         print(f"built and validated {zip_path.name} ({zip_path.stat().st_size / 1e6:.0f} MB) "
               f"in {time.perf_counter() - started:.1f} s")
     os.environ["HYPERGS_ENCODER"] = args.encoder

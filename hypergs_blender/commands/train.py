@@ -84,6 +84,10 @@ def add_commands(subparsers) -> None:
                    help="the network's forward pass: auto, bfloat16 on CUDA and float32 on a CPU; bfloat16 on a "
                         "CPU pays where it has AMX (Intel Xeon since Sapphire Rapids); the render and the "
                         "weights stay float32")
+    p.add_argument("--int8", action="store_true",
+                   help="conv, a new run: train with the convolutions rounded as the int8 ONNX model runs them "
+                        "(activation ranges calibrated at the start; `export` then writes that model), e.g. "
+                        "--init-from a float network for a few thousand steps at a low --lr")
     p.add_argument("--ema", type=options.decay, default=0.0, metavar="DECAY",
                    help="also keep an exponential moving average of the weights (e.g. 0.999: about the last 1,000 "
                         "steps); evaluated beside them (ema_* in the log), and what `export` writes; 0: none. Given "
@@ -147,10 +151,10 @@ def _export_command(args) -> None:
 
 
 def _export_onnx_command(args) -> None:
-    from ..network import load_model
+    from ..network import load_model, read_card
     from ..training.export import export_onnx
     path = Path(args.weights) / f"{args.name}.onnx"
-    export_onnx(load_model(args.weights, args.name), path)
+    export_onnx(load_model(args.weights, args.name), path, read_card(args.weights, args.name).get("int8"))
     print(f"wrote {path}")
 
 

@@ -19,7 +19,8 @@ from ..raster import SIGMA_CUTOFF
 ONNX_OPSET = 20
 
 
-def card_of(model, info: dict | None = None) -> dict:
+def card_of(model, info: dict | None = None, int8: dict | None = None) -> dict:
+    """int8: the conv network's activation ranges, where its ONNX model runs in int8 (training.int8)."""
     from ..model import model_config
     cfg = model.cfg
     if cfg.arch == "transformer":
@@ -27,8 +28,11 @@ def card_of(model, info: dict | None = None) -> dict:
         geometry = transformer_geometry(cfg, gaussian_range(trained) if trained else None)
     else:
         geometry = dict(stride=cfg.stride, multiple=cfg.multiple, reach=cfg.reach)
-    return dict(arch=cfg.arch, config=model_config(model), geometry=geometry, sigma_cutoff=SIGMA_CUTOFF,
+    card = dict(arch=cfg.arch, config=model_config(model), geometry=geometry, sigma_cutoff=SIGMA_CUTOFF,
                 info=info or {})
+    if int8:
+        card["int8"] = int8
+    return card
 
 
 def gaussian_range(spec: str) -> tuple[int, int]:
@@ -37,19 +41,22 @@ def gaussian_range(spec: str) -> tuple[int, int]:
     return int(low), int(high or low)
 
 
-def save_weights(model, directory, name: str, info: dict | None = None) -> None:
+def save_weights(model, directory, name: str, info: dict | None = None, int8: dict | None = None) -> None:
     from safetensors.torch import save_file
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     with AtomicOutput(directory / f"{name}.safetensors") as temp:
         save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(temp))
     (directory / f"{name}.safetensors").chmod(0o644)  # safetensors writes 0600; the weights are for everyone
-    write_bytes(directory / f"{name}.json", (json.dumps(card_of(model, info), indent=2) + "\n").encode())
+    write_bytes(directory / f"{name}.json", (json.dumps(card_of(model, info, int8), indent=2) + "\n").encode())
 
 
-def export_onnx(model, path) -> None:
+def export_onnx(model, path, int8: dict | None = None) -> None:
     """Either design, with a dynamic batch: the conv network with dynamic height and width (multiples
-    of its `multiple`), the transformer with a dynamic Gaussian count (anchors [batch, N, 2])."""
+    of its `multiple`), the transformer with a dynamic Gaussian count (anchors [batch, N, 2]). int8: the
+    conv network's activation ranges (its card's "int8"): its convolutions then run in int8 (training.int8)."""
+    import tempfile
+
     import torch
 
     batch = torch.export.Dim("batch", max=4096)
@@ -70,8 +77,15 @@ def export_onnx(model, path) -> None:
         dynamic = {"frames": {0: batch, 1: m * rows, 2: m * cols}}
     program = torch.onnx.export(model.eval(), inputs, input_names=names, output_names=["params"],
                                 opset_version=ONNX_OPSET, dynamo=True, external_data=False, dynamic_shapes=dynamic)
-    with AtomicOutput(path) as temp:
-        program.save(str(temp))
+    if not int8:
+        with AtomicOutput(path) as temp:
+            program.save(str(temp))
+        return
+    from .int8 import quantize_onnx
+    with tempfile.TemporaryDirectory() as folder:
+        program.save(str(Path(folder) / "float.onnx"))
+        with AtomicOutput(path) as temp:
+            quantize_onnx(model, int8, Path(folder) / "float.onnx", temp)
 
 
 def rebox(directory, name: str) -> float | None:
@@ -102,9 +116,10 @@ def rebox(directory, name: str) -> float | None:
     # The slow ONNX export first, the safetensors and the card (the box it records) last: stopped during the
     # export, the card and safetensors are the old ones, so the runtime refuses them and a second rebox
     # starts again from them
-    export_onnx(model, Path(directory) / f"{name}.onnx")
+    # int8: the head's output range, measured before, still holds it: the rescale moves colours by under 1 %
+    export_onnx(model, Path(directory) / f"{name}.onnx", card.get("int8"))
     info = card.get("info", {})  # reboxed_from: the box the colours were trained under, kept through conversions
-    save_weights(model, directory, name, dict(info, reboxed_from=info.get("reboxed_from", old)))
+    save_weights(model, directory, name, dict(info, reboxed_from=info.get("reboxed_from", old)), card.get("int8"))
     return old
 
 
@@ -172,6 +187,6 @@ def export_checkpoint(run, out, name: str | None = None, trained: bool = False) 
     if average:
         info["ema"] = dict(decay=args.get("ema"), updates=int(average["n_averaged"]))
     name = name or DEFAULT_NAMES[model.cfg.arch]
-    save_weights(model, out, name, info)
-    export_onnx(model, Path(out) / f"{name}.onnx")
+    save_weights(model, out, name, info, state.get("int8"))
+    export_onnx(model, Path(out) / f"{name}.onnx", state.get("int8"))
     return name, info

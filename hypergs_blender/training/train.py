@@ -41,7 +41,7 @@ from .. import raster
 from ..metrics import psnr, psnr_from_mse
 from ..model import PRESETS, ConvGS, anchor_inputs, build_model
 from ..render import render_torch
-from . import data
+from . import data, int8
 from .export import load_checkpoint, recorded_info
 from .optim import Lamb, parameter_groups
 from .regularizers import AdaptiveRegularizer
@@ -69,7 +69,10 @@ SITTING_OPTIONS = frozenset({"out", "minutes", "threads", "loader_threads", "pre
 # with --precision bfloat16 on a CPU and resumed without it trains in float32).
 SITTING_SPEED_OPTIONS = ("precision", "threads", "loader_threads")
 # Options that built the network and its optimizer's parameter groups: a resumed run cannot change them.
-FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale", "train_only")
+FIXED_OPTIONS = ("preset", "parametrization", "config", "init_from", "distill", "lr_scale", "train_only", "int8")
+# --int8: the activation ranges are calibrated on this many batches, drawn at steps no schedule reaches
+INT8_CALIBRATION_BATCHES = 16
+INT8_CALIBRATION_STEP = 1 << 40
 # --steps auto: the schedule's length, set at the end of the warm-up (whose learning rates do not depend
 # on it) from the sitting's step rate so far, for this share of the --minutes left (evaluations and
 # checkpoints take the rest)
@@ -396,6 +399,10 @@ def run(args) -> None:
         teacher = load_model(Path(args.distill).parent, Path(args.distill).stem).to(device)
         for name, parameter in model.named_parameters():
             parameter.requires_grad_(not name.startswith("head."))
+    if args.int8 and (args.distill or not conv):
+        raise HyperGSError("--int8 trains the conv network with its convolutions in int8, without --distill")
+    if args.int8 and not args.init_from:
+        raise HyperGSError("--int8 needs --init-from: its activation ranges are measured on a trained network")
     if args.train_only:
         if args.distill or not conv:
             raise HyperGSError("--train-only trains parts of a warm-started conv network, without --distill")
@@ -439,10 +446,20 @@ def run(args) -> None:
     size = args.size if conv else model.cfg.canvas
     noise = args.input_noise if teacher is None else 0.0
 
-    def batch(s):  # (clean frames, what the network sees: the frames with noise, or None)
-        frames = make_batch(sources, args.seed, s, rank, args.batch, frames_per_clip, size)
-        return frames, with_noise(frames, noise, args.seed, s, rank) if noise else None
+    def batch(s, r=rank):  # (clean frames, what the network sees: the frames with noise, or None)
+        frames = make_batch(sources, args.seed, s, r, args.batch, frames_per_clip, size)
+        return frames, with_noise(frames, noise, args.seed, s, r) if noise else None
 
+    int8_ranges = resume.get("int8") if resume else None
+    if args.int8 and int8_ranges is None:
+        def calibration_batches():  # rank 0's in every process, so that all get the same ranges
+            for s in range(INT8_CALIBRATION_STEP, INT8_CALIBRATION_STEP + INT8_CALIBRATION_BATCHES):
+                frames, noisy = batch(s, 0)
+                yield torch.from_numpy(frames if noisy is None else noisy)[:, 0].to(device)
+
+        int8_ranges = int8.calibrate(model, calibration_batches())
+    if int8_ranges:
+        int8.fake_quantize(model, int8_ranges)
     prefetch = Prefetcher(batch, args.loader_threads)
     evaluator = Evaluator(model, args.data_root, args.eval_videos) if rank == 0 else None
     log = open(out / "log.jsonl", "a") if rank == 0 else None
@@ -461,6 +478,8 @@ def run(args) -> None:
             state["regularizer"] = regularizer.state_dict()
         if averaged is not None:
             state["ema"] = averaged.state_dict()
+        if int8_ranges:
+            state["int8"] = int8_ranges
         tmp = checkpoint_path.with_suffix(".tmp")
         torch.save(state, tmp)
         os.replace(tmp, checkpoint_path)

@@ -72,3 +72,38 @@ def hard_params(n, seed=0, invalid=True):
         p[10, 2] = 0.0  # l11 = 0
         p[11, 3] = np.nan
     return p
+
+
+def random_conv(cfg, seed: int = 0, error_strength: float = 0.05):
+    """A conv network with every block, every way back up from a coarser level and the heads away from
+    their zero initialisation (the error pass's by error_strength); cfg: a model.ConvConfig."""
+    import torch
+
+    from hypergs_blender.model import ConvGS
+    torch.manual_seed(seed)
+    model = ConvGS(cfg)
+    with torch.no_grad():
+        model.head.weight.normal_(0, 0.05)
+        for up in model.up:
+            up.weight.normal_(0, 0.2)
+        for block in [b for level in model.encoder for b in level] + list(model.decoder):
+            block.b.weight.normal_(0, 0.05)
+        if model.error_pass is not None:
+            model.error_pass.head.weight.normal_(0, error_strength)
+            for block in model.error_pass.blocks:
+                block.b.weight.normal_(0, error_strength)
+    return model.eval()
+
+
+def training_args(out, steps, preset, minutes=None, loader_threads=1):
+    """`hypergs train`'s arguments for a few steps of a tiny run on procedural data."""
+    import argparse
+
+    from hypergs_blender.commands import train as train_commands
+    parser = argparse.ArgumentParser()
+    train_commands.add_commands(parser.add_subparsers())
+    argv = ["train", "--out", str(out), "--preset", preset, "--data", "procedural:1", "--steps", str(steps),
+            "--batch", "2", "--size", "32", "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000",
+            "--checkpoint-every", "2", "--warmup", "2", "--loader-threads", str(loader_threads)]
+    argv += [] if minutes is None else ["--minutes", str(minutes)]
+    return parser.parse_args(argv)

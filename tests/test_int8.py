@@ -12,8 +12,7 @@ from hypergs_blender.network import onnx_encoder, resolve_encoder
 from hypergs_blender.training import int8, train
 from hypergs_blender.training.export import card_of, export_checkpoint, export_onnx
 
-from test_model import random_conv
-from test_train import training_args
+from conftest import random_conv, training_args
 
 CONFIG = ConvConfig(width=16, stem=8, blocks=(1,), error_width=8)  # the bundled network's shape, smaller
 

@@ -14,6 +14,8 @@ from hypergs_blender.network import torch_encoder
 from hypergs_blender.render import local_render, render_torch
 from hypergs_blender.training.regularizers import AdaptiveRegularizer, effective_rank
 
+from conftest import random_conv
+
 TINY = dict(canvas=32, patch=8, clip_frames=4, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
 
 
@@ -125,24 +127,6 @@ def test_lamb_step_matches_hand_computation():
     update = torch.tensor([[1.0, -1.0]])
     expected = torch.tensor([[3.0, 4.0]]) - 0.1 * (5 / math.sqrt(2)) * update
     torch.testing.assert_close(w.detach(), expected, atol=1e-5, rtol=0)
-
-
-def random_conv(cfg: ConvConfig, seed: int = 0, error_strength: float = 0.05) -> ConvGS:
-    """A conv network with every block, every way back up from a coarser level and the heads away from
-    their zero initialisation (the error pass's by error_strength)."""
-    torch.manual_seed(seed)
-    model = ConvGS(cfg)
-    with torch.no_grad():
-        model.head.weight.normal_(0, 0.05)
-        for up in model.up:
-            up.weight.normal_(0, 0.2)
-        for block in [b for level in model.encoder for b in level] + list(model.decoder):
-            block.b.weight.normal_(0, 0.05)
-        if model.error_pass is not None:
-            model.error_pass.head.weight.normal_(0, error_strength)
-            for block in model.error_pass.blocks:
-                block.b.weight.normal_(0, error_strength)
-    return model.eval()
 
 
 @pytest.mark.parametrize("preset", ["conv", "conv-round2"])

@@ -14,6 +14,8 @@ from hypergs_blender.model import ConvConfig, ConvGS, HyperGS, TransformerConfig
 from hypergs_blender.training.regularizers import AdaptiveRegularizer
 from hypergs_blender.training.optim import Lamb, parameter_groups
 
+from conftest import training_args
+
 TINY = dict(canvas=32, patch=8, clip_frames=2, temporal_window=2, dim=32, heads=2, ffn=64, st_layers=1, q_layers=1)
 
 
@@ -72,16 +74,6 @@ def test_tiny_conv_model_overfits_one_frame():
         optimizer.step()
         psnrs.append(float(psnr_from_mse(mse.item())))
     assert psnrs[-1] > psnrs[0] + 5, (psnrs[0], psnrs[-1])
-
-
-def training_args(out, steps, preset, minutes=None, loader_threads=1):
-    parser = argparse.ArgumentParser()
-    train_commands.add_commands(parser.add_subparsers())
-    argv = ["train", "--out", str(out), "--preset", preset, "--data", "procedural:1", "--steps", str(steps),
-            "--batch", "2", "--size", "32", "--gaussians", "16:64", "--log-every", "1", "--eval-every", "1000",
-            "--checkpoint-every", "2", "--warmup", "2", "--loader-threads", str(loader_threads)]
-    argv += [] if minutes is None else ["--minutes", str(minutes)]
-    return parser.parse_args(argv)
 
 
 @pytest.mark.parametrize("preset", ["conv", "small"])

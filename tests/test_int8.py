@@ -43,7 +43,7 @@ def test_the_int8_onnx_model_rounds_as_fake_quantize_does(tmp_path, error_width,
     assert len(quantized_weights) == len(int8.convolutions(model))
     assert max(int(np.abs(w.astype(np.int32)).max()) for w in quantized_weights) == int8.WEIGHT_LEVELS
     test = frames(7).numpy()
-    quantized = onnx_encoder(tmp_path / "m.onnx", card_of(model, int8=ranges), threads=1).predict(test)
+    quantized = onnx_encoder(tmp_path / "m.onnx", card_of(model), threads=1).predict(test)
     with torch.no_grad():
         exact = model(torch.from_numpy(test)).numpy()
         handles = int8.fake_quantize(model, ranges)
@@ -90,9 +90,9 @@ def test_train_int8_records_its_ranges_and_exports_the_int8_model(tmp_path, monk
     save_weights(random_conv(ConvConfig(width=8, stem=4, blocks=(1,))), tmp_path, "trained")
     args.init_from = str(tmp_path / "trained.safetensors")
     train.run(args)
-    ranges = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["int8"]
-    assert set(ranges) == {name for name, _ in int8.convolutions(train.build_model(
-        json.loads(torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["config"])))}
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    ranges = state["int8"]
+    assert set(ranges) == {name for name, _ in int8.convolutions(train.build_model(json.loads(state["config"])))}
     train.run(training_args(tmp_path / "run", 4, "conv"))  # resumed: --int8 as the run started
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert state["step"] == 4 and state["int8"] == ranges and json.loads(state["args"])["int8"]

@@ -303,12 +303,17 @@ class Estimate:
     blend_bytes: float  # what the clip adds to the .blend (the frame its mesh holds)
 
 
+def encode_cost(encoder: str) -> EncodeCost | None:
+    """ENCODE_COSTS' entry for an encoder by its name ("network-onnx", "floor", "transformer-torch", ...)."""
+    return ENCODE_COSTS.get(encoder.partition("-")[0])
+
+
 def adaptive_start_applies(encoder: str, layout: Layout, steps: int) -> bool:
     """Whether a refinement of `steps` steps on `layout` by `encoder` (its name: "network-onnx", "floor", ...)
     starts from the content-adaptive placement (`adaptive_start`): one of ADAPTIVE_MIN_REFINE steps or more by an
     encoder whose cost says so (the conv network), above the finest cell, where the fine run would hold no more
     than the count."""
-    cost = ENCODE_COSTS.get(encoder.partition("-")[0])
+    cost = encode_cost(encoder)
     return (steps >= ADAPTIVE_MIN_REFINE and cost is not None and cost.content_adaptive
             and layout.cell > layout.stride)
 
@@ -317,7 +322,9 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
     name: "floor", "network-onnx", "transformer-onnx", ...) on `threads` CPU threads: time and size, from
     ENCODE_COSTS."""
-    cost = ENCODE_COSTS[encoder.partition("-")[0]]
+    cost = encode_cost(encoder)
+    if cost is None:
+        raise ValueError(f"no encoding cost for the encoder {encoder!r} (ENCODE_COSTS: {', '.join(ENCODE_COSTS)})")
     n, threads = layout.count, max(1, int(threads))
     gain = 1 + THREAD_GAIN * (threads - 1)  # of a threaded network's pass, and of refinement (torch) after any encoder
     speedup = gain if cost.threaded else 1.0

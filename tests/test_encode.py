@@ -198,6 +198,10 @@ def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
     floor = estimate(small, 10, refine=30, encoder="floor").seconds
     assert floor - estimate(small, 10, refine=30, encoder="floor", threads=2).seconds == pytest.approx(
         refining * (1 - 1 / (1 + THREAD_GAIN)))
+    # The encoder's kind is its name's first part; one without a cost is refused by name.
+    assert estimate(small, 10, encoder="network-torch") == estimate(small, 10, encoder="network-onnx") == a
+    with pytest.raises(ValueError, match="'mystery-onnx'"):
+        estimate(small, 10, encoder="mystery-onnx")
 
 
 def test_settings_read_a_preset_a_count_or_a_cell():

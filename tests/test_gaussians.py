@@ -86,12 +86,54 @@ def test_needle_cholesky_is_exact():
 
 def test_stretch_params_renders_like_a_stretch():
     p = random_params(1, 12, canvas=32)
-    stretched = stretch_params(p, 2.0, 0.75)
-    a = render_inputs(torch.from_numpy(p).double(), 32, 32, 64, 24)
-    b = render_inputs(torch.from_numpy(stretched).double(), 64, 24, 64, 24)
-    img_a = rasterize_reference(*a, 64, 24)
-    img_b = rasterize_reference(*b, 64, 24)
+    stretched = stretch_params(p, 2.0, 1.25)  # larger than the canvas, where render_inputs adds no pixel filter
+    a = render_inputs(torch.from_numpy(p).double(), 32, 32, 64, 40)
+    b = render_inputs(torch.from_numpy(stretched).double(), 64, 40, 64, 40)
+    img_a = rasterize_reference(*a, 64, 40)
+    img_b = rasterize_reference(*b, 64, 40)
     np.testing.assert_allclose(img_a.numpy(), img_b.numpy(), atol=2e-5)
+
+
+def image_moments(image):
+    """Sum, mean (x, y) and covariance [2, 2] of a one-channel image [H, W] over its pixel centres."""
+    h, w = image.shape
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    mass = image.sum()
+    mx, my = (image * x).sum() / mass, (image * y).sum() / mass
+    dx, dy = x - mx, y - my
+    cov = np.array([[(image * dx * dx).sum(), (image * dx * dy).sum()],
+                    [(image * dx * dy).sum(), (image * dy * dy).sum()]]) / mass
+    return mass, (mx, my), cov
+
+
+@pytest.mark.parametrize("width, height", [(32, 48), (64, 64), (128, 96)])
+def test_a_render_smaller_than_the_canvas_adds_the_pixel_filter_and_keeps_each_gaussians_sum(width, height):
+    from hypergs_blender.gaussians import PIXEL_VARIANCE
+    p = np.array([[[0.1, -0.05, 3.0, 1.4, 0.4, 0.8, 0.8, 0.8]]])
+    image = rasterize_reference(*render_inputs(torch.from_numpy(p), 64, 64, width, height), width, height)
+    mass, mean, cov = image_moments(image[0, ..., 0].numpy())
+    t = np.array([width / 64, height / 64])
+    stretched = covariance(p[0, :, 2:4], p[0, :, 4], t)[0]
+    expected = stretched + np.diag(PIXEL_VARIANCE * np.maximum(0, 1 - t * t))  # nothing added at 64 x 64 or larger
+    np.testing.assert_allclose(cov, expected, rtol=5e-3)  # the 4-sigma box cuts 0.2-0.4 % of the second moments
+    np.testing.assert_allclose(mean, (p[0, 0, :2] + 1) / 2 * [width, height], atol=2e-3)
+    # the filtered Gaussian's sum is the unfiltered one's, c 2 pi sqrt(det T Sigma T) (less the 4-sigma box's cut)
+    np.testing.assert_allclose(mass, 0.8 * 2 * math.pi * math.sqrt(np.linalg.det(stretched)), rtol=2e-3)
+
+
+def test_a_smaller_render_is_nearer_the_canvas_render_averaged_over_its_pixels():
+    # The pixel filter stands in for what an area resize of the canvas-sized render gives: a render at half
+    # the canvas, against the canvas render averaged over 2 x 2 pixels, is nearer with it than without it.
+    p = random_params(1, 40, canvas=64)
+    p[..., 2:4] /= 4  # small Gaussians, which a smaller render would otherwise sample sparsely
+    full = rasterize_reference(*render_inputs(torch.from_numpy(p).double(), 64, 64, 64, 64), 64, 64)[0].numpy()
+    averaged = full.reshape(32, 2, 32, 2, 3).mean((1, 3))
+    means, chol, colors = render_inputs(torch.from_numpy(p).double(), 64, 64, 32, 32)
+    filtered = rasterize_reference(means, chol, colors, 32, 32)[0].numpy()
+    unfiltered = rasterize_reference(*render_inputs(torch.from_numpy(stretch_params(p, 0.5, 0.5)).double(),
+                                                    32, 32, 32, 32), 32, 32)[0].numpy()
+    error, before = np.abs(filtered - averaged).mean(), np.abs(unfiltered - averaged).mean()
+    assert error < 0.6 * before, (error, before)
 
 
 @pytest.mark.parametrize("n, aspect", [(1, 1.0), (250, 1.0), (1000, 1.0), (3000, 1.0), (1000, 16 / 9)])

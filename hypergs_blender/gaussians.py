@@ -153,13 +153,14 @@ def inverse_covariance(scale: np.ndarray, rotation: np.ndarray, stretch=(1.0, 1.
     return inv
 
 
-def render_inputs(params, canvas_width: int, canvas_height: int, width: int, height: int):
+def render_inputs(params, canvas_width: int, canvas_height: int, width: int, height: int, pixel_filter: bool = True):
     """Map [..., N, 8] parameters (numpy or torch) to the rasterizer's (means_px, chol, colors) at W x H.
 
     The covariance is T Sigma T, and where the render is smaller than the canvas (t < 1 along an axis),
     plus V = diag(PIXEL_VARIANCE (1 - t^2)) for each such axis: each Gaussian convolved with what a pixel
     of the render averages over. Its colour then scales by sqrt(det S / det(S + V)), so that its sum over
     the image stays what it was. At the canvas' size or larger, V = 0 and nothing else changes.
+    pixel_filter=False: point samples whatever the size (the error pass's render, render.local_render).
 
     Uses the closed form of the Cholesky factor: l11 = sqrt(S_xx), l21 = S_xy / l11,
     l22 = sqrt(det S) / l11 with sqrt(det S) = sx sy tx ty, which stays exact for needle-thin Gaussians
@@ -176,8 +177,10 @@ def render_inputs(params, canvas_width: int, canvas_height: int, width: int, hei
     cov_xy = (c * s * (sx2 - sy2)) * (tx * ty)
     root_det = sx * sy * (tx * ty)
     colors = params[..., 5:8]
-    vx, vy = PIXEL_VARIANCE * max(0.0, 1 - tx * tx), PIXEL_VARIANCE * max(0.0, 1 - ty * ty)
-    if vx or vy:  # a Python branch: the canvas-sized render (training's, the ONNX model's) is unchanged
+    vx = vy = 0.0
+    if pixel_filter:
+        vx, vy = PIXEL_VARIANCE * max(0.0, 1 - tx * tx), PIXEL_VARIANCE * max(0.0, 1 - ty * ty)
+    if vx or vy:  # a Python branch: a canvas-sized render (training's, refinement's) is as it was
         cov_yy = (s * s * sx2 + c * c * sy2) * (ty * ty)
         filtered_root_det = xp.sqrt(root_det * root_det + vx * cov_yy + vy * cov_xx + vx * vy)
         colors = colors * (root_det / filtered_root_det)[..., None]

@@ -32,12 +32,12 @@ def render_frames(video: GaussianVideo, width: int, height: int, frames=None, ke
     return render_params(params, video.canvas_width, video.canvas_height, width, height, keep_going)
 
 
-def render_torch(params, canvas_width: int, canvas_height: int, width: int, height: int):
+def render_torch(params, canvas_width: int, canvas_height: int, width: int, height: int, pixel_filter: bool = True):
     """Differentiable render of torch params [..., N, 8] on a canvas_width x canvas_height canvas at
-    width x height -> [..., height, width, 3]."""
+    width x height -> [..., height, width, 3] (pixel_filter: gaussians.render_inputs')."""
     from .raster import rasterize
 
-    means, chol, colors = render_inputs(params, canvas_width, canvas_height, width, height)
+    means, chol, colors = render_inputs(params, canvas_width, canvas_height, width, height, pixel_filter)
     return rasterize(means, chol, colors, width, height)
 
 
@@ -55,7 +55,8 @@ def local_render(params, rows: int, cols: int, stride: int, samples: int, reach:
 
     b = params.shape[0]
     w, h = cols * stride, rows * stride
-    means, chol, colours = render_inputs(params, w, h, w, h)
+    # point samples, as the error pass was trained to read (and w, h are symbolic in an ONNX export)
+    means, chol, colours = render_inputs(params, w, h, w, h, pixel_filter=False)
     # per cell, what a point's exponent needs, with 1/2 folded in: exp(-(u^2 + v^2)) where
     # u = (x - mx) a, v = (y - my) d - c d u, a = 1 / (sqrt 2 l11), c d = l21 / l22, d = 1 / (sqrt 2 l22).
     # u depends on the point's column only and (y - my) d on its row only: both at `samples` points a

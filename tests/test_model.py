@@ -240,7 +240,8 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
                         stride * (0.2 + 0.3 * torch.rand(1, n, 2, generator=rng)),
                         torch.rand(1, n, 1, generator=rng) * math.pi, torch.rand(1, n, 3, generator=rng)], -1)
     for samples in (4, 2):
-        exact = render_torch(params, cols * stride, rows * stride, cols * samples, rows * samples).permute(0, 3, 1, 2)
+        exact = render_torch(params, cols * stride, rows * stride, cols * samples, rows * samples,
+                             pixel_filter=False).permute(0, 3, 1, 2)  # point samples, as local_render's
         local = torch.nn.functional.pixel_shuffle(local_render(params, rows, cols, stride, samples, reach=2), samples)
         assert local.shape == (1, 3, rows * samples, cols * samples)
         torch.testing.assert_close(local, exact, atol=3e-3, rtol=0)  # the rasterizer's box
@@ -275,7 +276,7 @@ def test_the_error_pass_reads_the_error_of_the_first_pass_render():
     with torch.no_grad():
         h = model.head(model.features((x - 0.5) * 2))
         error = model.render_error(h, x)  # [1, 3 samples^2, rows, cols]
-        rendered = render_torch(model.geometry(h, x), 48, 32, 24, 16)  # one sample per 2 x 2 pixels
+        rendered = render_torch(model.geometry(h, x), 48, 32, 24, 16, pixel_filter=False)  # a sample per 2 x 2 pixels
     expected = (torch.nn.functional.avg_pool2d(x, 2) - rendered.permute(0, 3, 1, 2)) * ERROR_GAIN
     torch.testing.assert_close(torch.nn.functional.pixel_shuffle(error, 2), expected, atol=0.02, rtol=0)
     assert float(expected.abs().mean()) > 0.5  # a real error, well above the renders' difference

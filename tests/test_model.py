@@ -231,7 +231,7 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
     """The error pass's render: per-cell Gaussians (moved up to a quarter cell, 0.2 to 0.5 cells wide: within
     reach 2 to 4.7 sigma) at samples^2 points per cell, against the rasterizer (which cuts them at its
     box); with reach 0 it misses the light of the neighbours' Gaussians."""
-    rows, cols, stride = 6, 8, 4
+    rows, cols, stride, reach = 6, 8, 4, 2
     rng = torch.Generator().manual_seed(0)
     cy, cx = torch.meshgrid(torch.arange(rows) + 0.5, torch.arange(cols) + 0.5, indexing="ij")
     centres = torch.stack([cx / cols, cy / rows], -1).reshape(1, -1, 2) * 2 - 1
@@ -242,7 +242,7 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
     for samples in (4, 2):
         exact = render_torch(params, cols * stride, rows * stride, cols * samples, rows * samples,
                              pixel_filter=False).permute(0, 3, 1, 2)  # point samples, as local_render's
-        local = torch.nn.functional.pixel_shuffle(local_render(params, rows, cols, stride, samples, reach=2), samples)
+        local = torch.nn.functional.pixel_shuffle(local_render(params, rows, cols, stride, samples, reach), samples)
         assert local.shape == (1, 3, rows * samples, cols * samples)
         torch.testing.assert_close(local, exact, atol=3e-3, rtol=0)  # the rasterizer's box
         alone = torch.nn.functional.pixel_shuffle(local_render(params, rows, cols, stride, samples, reach=0), samples)
@@ -254,8 +254,8 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
             for j in range(cols * samples):
                 point = (torch.tensor([j, i], dtype=torch.float64) + 0.5) * (stride / samples)
                 r, c = i // samples, j // samples
-                for nr in range(max(0, r - 2), min(rows, r + 3)):
-                    for nc in range(max(0, c - 2), min(cols, c + 3)):
+                for nr in range(max(0, r - reach), min(rows, r + reach + 1)):
+                    for nc in range(max(0, c - reach), min(cols, c + reach + 1)):
                         g = p[nr * cols + nc]
                         mean = (g[0:2] + 1) / 2 * torch.tensor([cols * stride, rows * stride], dtype=torch.float64)
                         rot = torch.tensor([[math.cos(g[4]), -math.sin(g[4])], [math.sin(g[4]), math.cos(g[4])]],
@@ -263,7 +263,7 @@ def test_local_render_sums_the_gaussians_of_the_cells_within_its_reach():
                         cov = rot @ torch.diag(g[2:4] ** 2) @ rot.T
                         d = point - mean
                         slow[:, i, j] += g[5:8] * torch.exp(-0.5 * d @ torch.linalg.solve(cov, d))
-        fast = torch.nn.functional.pixel_shuffle(local_render(params.double(), rows, cols, stride, samples, reach=2), samples)
+        fast = torch.nn.functional.pixel_shuffle(local_render(params.double(), rows, cols, stride, samples, reach), samples)
         torch.testing.assert_close(fast[0], slow, atol=1e-9, rtol=0)
 
 

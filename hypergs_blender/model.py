@@ -104,6 +104,7 @@ class ConvConfig:
     width: int = 64  # channels at cell resolution
     blocks: tuple = (4,)  # residual blocks at the cell level, then at each coarser level (x2)
     mid: int = 0  # channels between a residual block's two convs at the cell level (0: width)
+    dilation: tuple = ()  # the cell level's blocks' dilations, in order (1 for the blocks not listed): context
     widen: int = 1  # channel factor per coarser level
     offset_range: float = 1.0  # cells a mean may move from its cell centre
     scale_range: float = 3.0  # |log(scale / initial scale)| bound
@@ -116,6 +117,9 @@ class ConvConfig:
 
     def __post_init__(self):
         self.blocks = tuple(int(b) for b in self.blocks)
+        self.dilation = tuple(int(d) for d in self.dilation)
+        if len(self.dilation) > self.blocks[0] or any(d < 1 for d in self.dilation):
+            raise ValueError(f"dilation {list(self.dilation)}: one of 1 or more per cell-level block ({self.blocks[0]})")
         if self.error_width and self.stride % self.error_samples:
             raise ValueError(f"error_samples ({self.error_samples}) must divide the stride ({self.stride})")
         if self.error_width and self.error_iterations < 1:
@@ -127,15 +131,22 @@ class ConvConfig:
         return self.stride * 2 ** (len(self.blocks) - 1)
 
     @property
+    def dilations(self) -> list[tuple]:
+        """Each level's blocks' dilations: the cell level's from `dilation`, padded with 1; 1 at coarser levels."""
+        cell_level = self.dilation + (1,) * (self.blocks[0] - len(self.dilation))
+        return [cell_level] + [(1,) * n for n in self.blocks[1:]]
+
+    @property
     def reach(self) -> int:
         """Input pixels beyond which a pixel cannot change a cell's Gaussian: an upper bound of the
         receptive field's radius, rounded up to `multiple`. Tiles that overlap by this much encode
         exactly as one pass does."""
         # the stem: two full-resolution 3x3 convs and the conv down to the cell, or one 3x3 conv over cells
         radius = 2 + self.stride if self.stem_level == "pixel" else 2 * self.stride
-        for level, n in enumerate(self.blocks):
+        for level in range(len(self.blocks)):
             cell = self.stride * 2 ** level
-            radius += (2 * n + 1) * cell  # n blocks of two 3x3 convs, the conv down to (or up from) here
+            # the blocks' two 3x3 convs each (dilated), the conv down to (or up from) here
+            radius += (2 * sum(self.dilations[level]) + 1) * cell
             if level < len(self.blocks) - 1:
                 radius += 2 * cell  # the block on the way back up
         if self.error_width:  # the error reads the Gaussians error_reach cells away; then its convs
@@ -331,13 +342,13 @@ class HyperGS(nn.Module):
 
 class ResBlock(nn.Module):
     """x + conv(gelu(conv(gelu(x)))), the second conv initialised to zero (the block starts as identity);
-    `mid` channels between the two convs (default: as many as outside)."""
+    `mid` channels between the two convs (default: as many as outside), both 3x3 convs `dilation` apart."""
 
-    def __init__(self, channels: int, mid: int = 0):
+    def __init__(self, channels: int, mid: int = 0, dilation: int = 1):
         super().__init__()
         mid = mid or channels
-        self.a = nn.Conv2d(channels, mid, 3, padding=1)
-        self.b = nn.Conv2d(mid, channels, 3, padding=1)
+        self.a = nn.Conv2d(channels, mid, 3, padding=dilation, dilation=dilation)
+        self.b = nn.Conv2d(mid, channels, 3, padding=dilation, dilation=dilation)
         nn.init.zeros_(self.b.weight)
         nn.init.zeros_(self.b.bias)
 
@@ -363,8 +374,8 @@ class ConvGS(nn.Module):
         widths = [c * cfg.widen ** level for level in range(len(cfg.blocks))]
         mids = [(cfg.mid or c) * cfg.widen ** level for level in range(len(cfg.blocks))]
         self.down = nn.ModuleList(nn.Conv2d(a, b, 2, stride=2) for a, b in zip(widths, widths[1:]))
-        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w, m) for _ in range(n)))
-                                     for w, m, n in zip(widths, mids, cfg.blocks))
+        self.encoder = nn.ModuleList(nn.Sequential(*(ResBlock(w, m, d) for d in level))
+                                     for w, m, level in zip(widths, mids, cfg.dilations))
         self.up = nn.ModuleList(nn.Conv2d(b, a, 1) for a, b in zip(widths, widths[1:]))
         for up in self.up:  # coarser levels start switched off: a warm start from fewer levels is that network
             nn.init.zeros_(up.weight)

@@ -182,13 +182,15 @@ def test_cell_stem_sees_the_pixels_of_the_cell_and_its_neighbours_only():
                 assert bool(moved) == changes, (stem_level, column)
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations", [
-    ((2,), "pixel", 0, 3, 1), ((1, 1, 1), "pixel", 0, 3, 1), ((2,), "cell", 0, 3, 1), ((1, 1, 1), "cell", 0, 3, 1),
-    ((2,), "cell", 8, 3, 1), ((2,), "cell", 8, 1, 1), ((2,), "cell", 8, 1, 2)])
-def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, error_kernel, error_iterations):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations,dilation", [
+    ((2,), "pixel", 0, 3, 1, ()), ((1, 1, 1), "pixel", 0, 3, 1, ()), ((2,), "cell", 0, 3, 1, ()),
+    ((1, 1, 1), "cell", 0, 3, 1, ()), ((2,), "cell", 8, 3, 1, ()), ((2,), "cell", 8, 1, 1, ()),
+    ((2,), "cell", 8, 1, 2, ()), ((2,), "cell", 0, 3, 1, (1, 3)), ((2, 1), "cell", 8, 1, 1, (3,))])
+def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, error_kernel, error_iterations,
+                                               dilation):
     """A pixel further than `reach` from a cell cannot change its Gaussian; a nearer one does."""
     cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
-                     error_kernel=error_kernel, error_iterations=error_iterations)
+                     error_kernel=error_kernel, error_iterations=error_iterations, dilation=dilation)
     model = random_conv(cfg, error_strength=0.5)  # the error's far reach is faint: make it show
     size = 2 * cfg.reach + 4 * cfg.multiple
     x = torch.rand(1, size, size, 3)
@@ -205,9 +207,29 @@ def test_conv_reach_bounds_the_receptive_field(blocks, stem_level, error_width, 
     assert (out_near - base).abs().max() > 1e-6
 
 
+def test_a_dilated_block_sees_further_and_starts_as_the_identity():
+    """A third block dilated by 3 sees a pixel 8 cells away where the network without it sees 5 (the reach grows
+    by its 2 x 3 cells), and starts as the identity: a warm start from fewer blocks is that network."""
+    plain = random_conv(ConvConfig(width=8, stem=4, blocks=(2,)))
+    dilated = ConvGS(ConvConfig(width=8, stem=4, blocks=(3,), dilation=(1, 1, 3))).eval()
+    dilated.load_state_dict(plain.state_dict(), strict=False)
+    assert dilated.cfg.reach == plain.cfg.reach + 2 * 3 * 4
+    x = torch.rand(1, 96, 96, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(dilated(x), plain(x), rtol=0, atol=0)
+        torch.nn.init.normal_(dilated.encoder[0][2].b.weight, std=0.1)
+        cell = 12  # the middle cell's row and column; its pixels start at 48
+        poked = x.clone()
+        poked[0, :, 48 - 8 * 4] += 1  # 8 cells to the left: the plain network's stem and 2 blocks reach 5
+        moved = lambda model: float((model(poked) - model(x)).reshape(24, 24, 8)[cell, cell].abs().max())
+        assert moved(plain) == 0 and moved(dilated) > 1e-6
+
+
 @pytest.mark.parametrize("fields,message", [(dict(error_samples=3), "must divide the stride"),
-                                            (dict(error_iterations=0), "error_iterations must be 1 or more")])
-def test_an_error_pass_config_that_cannot_run_is_refused(fields, message):
+                                            (dict(error_iterations=0), "error_iterations must be 1 or more"),
+                                            (dict(dilation=(1,) * 5), "one of 1 or more per cell-level block"),
+                                            (dict(dilation=(0,)), "one of 1 or more per cell-level block")])
+def test_a_config_that_cannot_run_is_refused(fields, message):
     with pytest.raises(ValueError, match=message):
         ConvConfig(error_width=8, **fields)
 
@@ -282,16 +304,18 @@ def test_the_error_pass_reads_the_error_of_the_first_pass_render():
     assert float(expected.abs().mean()) > 0.5  # a real error, well above the renders' difference
 
 
-@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations", [
-    ((4,), "pixel", 0, 3, 1), ((1, 1, 1), "pixel", 0, 3, 1), ((4,), "cell", 0, 3, 1), ((2,), "cell", 8, 3, 1),
-    ((2,), "cell", 8, 1, 1), ((2,), "cell", 8, 1, 2)])
-def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, error_kernel, error_iterations, monkeypatch):
+@pytest.mark.parametrize("blocks,stem_level,error_width,error_kernel,error_iterations,dilation", [
+    ((4,), "pixel", 0, 3, 1, ()), ((1, 1, 1), "pixel", 0, 3, 1, ()), ((4,), "cell", 0, 3, 1, ()),
+    ((2,), "cell", 8, 3, 1, ()), ((2,), "cell", 8, 1, 1, ()), ((2,), "cell", 8, 1, 2, ()),
+    ((3,), "cell", 8, 1, 1, (1, 1, 4))])
+def test_tiles_give_exactly_one_pass(blocks, stem_level, error_width, error_kernel, error_iterations, dilation,
+                                     monkeypatch):
     """Encoding in overlapping tiles gives the Gaussians of one pass over the whole frame: no seams. In
     float64, so that what a pixel beyond a too-short reach changes (faint through the error pass: ~1e-5 a
     cell short) stands out of the sums' rounding."""
     import hypergs_blender.network as network
     cfg = ConvConfig(width=8, stem=4, blocks=blocks, stem_level=stem_level, error_width=error_width,
-                     error_kernel=error_kernel, error_iterations=error_iterations)
+                     error_kernel=error_kernel, error_iterations=error_iterations, dilation=dilation)
     model = random_conv(cfg, error_strength=0.5).double()
 
     def forward(frames: np.ndarray) -> np.ndarray:

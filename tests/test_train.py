@@ -10,7 +10,7 @@ from hypergs_blender.errors import HyperGSError
 from hypergs_blender.metrics import psnr_from_mse
 from hypergs_blender.render import render_torch
 from hypergs_blender.training import train
-from hypergs_blender.model import ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs
+from hypergs_blender.model import PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs
 from hypergs_blender.training.regularizers import AdaptiveRegularizer
 from hypergs_blender.training.optim import Lamb, parameter_groups
 
@@ -315,6 +315,20 @@ def test_lr_scale_gives_a_part_its_own_learning_rate(tmp_path):
     args.lr_scale = {"wrap": 3.0}
     with pytest.raises(HyperGSError, match="wrap not parts of this network"):
         train.run(args)
+
+
+def test_lr_scale_the_most_specific_part_decides():
+    """encoder=0.1 encoder.0.1=1: one block inside a slow part at its own rate (a new block on warm-started ones)."""
+    model = ConvGS(PRESETS["conv"])
+    groups = train.lr_groups(model, {"encoder": 0.1, "encoder.0.1": 1.0, "head": 2.0})
+    scale_of = {id(parameter): group["lr_scale"] for group in groups for parameter in group["params"]}
+    scale = {name: scale_of[id(parameter)] for name, parameter in model.named_parameters()}
+    assert len(scale) == len(scale_of)  # every parameter in one group
+    assert scale["encoder.0.0.a.weight"] == 0.1 and scale["encoder.0.2.b.bias"] == 0.1
+    assert scale["encoder.0.1.a.weight"] == 1.0 and scale["encoder.0.1.b.bias"] == 1.0
+    assert scale["head.weight"] == 2.0 and scale["stem.1.weight"] == 1.0
+    with pytest.raises(HyperGSError, match="encoder.0.9 not parts of this network"):
+        train.lr_groups(model, {"encoder.0.9": 3.0})
 
 
 def test_train_only_trains_the_parts_named_and_keeps_the_rest(tmp_path, monkeypatch):

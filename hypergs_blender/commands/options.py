@@ -122,26 +122,27 @@ class ConfigItem(ArgType):
 
 
 class Part(ArgType):
-    """A top-level part of a network (a module name: head, error_pass, ...; checked when the run starts)."""
+    """A part of a network: a module's dotted name (head, error_pass, or encoder.0.4 for one block inside a
+    part; checked when the run starts)."""
 
-    refused = ("", "a.b", "=3", "head=2")
+    refused = ("", "a..b", ".head", "head.", "=3", "head=2", "a-b")
 
     def __call__(self, text: str) -> str:
-        if not text.isidentifier():
-            raise argparse.ArgumentTypeError(f"expected a top-level part of the network (a module name), got {text!r}")
+        if not all(piece.isidentifier() or piece.isdigit() for piece in text.split(".")):
+            raise argparse.ArgumentTypeError(f"expected a part of the network (a module's dotted name), got {text!r}")
         return text
 
 
 class LrScale(ArgType):
-    """PART=FACTOR: a top-level part of a network (a module name: head, stem, ...; checked when the run
+    """PART=FACTOR: a part of a network (a module's dotted name: head, stem, encoder.0.4, ...; checked when the run
     starts) and a positive learning-rate factor for its parameters."""
 
-    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a.b=2")
+    refused = ("", "head", "head=", "=3", "head=0", "head=-1", "head=abc", "a..b=2")
 
     def __call__(self, text: str) -> tuple[str, float]:
         part, sep, value = text.partition("=")
         if not sep:
-            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a top-level part of the network), got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected PART=FACTOR (a part of the network), got {text!r}")
         return Part()(part), positive_float(value)
 
 

@@ -57,10 +57,11 @@ def add_commands(subparsers) -> None:
     p.add_argument("--lr", type=options.positive_float, default=None,
                    help="peak learning rate (conv 1e-3 AdamW, transformer 2e-3 LAMB)")
     p.add_argument("--lr-scale", nargs="+", default=[], metavar="PART=FACTOR", type=options.lr_scale,
-                   help="conv, a new run: the learning rate of a top-level part of the network times FACTOR, "
-                        "e.g. stem=3 (a new stem on warm-started blocks)")
+                   help="conv, a new run: the learning rate of a part of the network times FACTOR, e.g. stem=3 "
+                        "(a new stem on warm-started blocks); the most specific part decides: encoder=0.1 "
+                        "encoder.0.4=1 (a new block at the full rate)")
     p.add_argument("--train-only", nargs="+", default=[], metavar="PART", type=options.part,
-                   help="conv, a new run: train only these top-level parts of the network, the rest kept as "
+                   help="conv, a new run: train only these parts of the network (dotted module names), the rest kept as "
                         "--init-from gave them, e.g. error_pass (a second pass on a trained first)")
     p.add_argument("--clip", type=options.positive_float, default=None,
                    help="gradient norm clipping (conv 0.5, transformer 1.0)")

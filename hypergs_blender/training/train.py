@@ -256,28 +256,38 @@ def warm_start(model, path, rank: int = 0) -> None:
 
 
 def check_parts(model, names, flag: str) -> None:
-    """Raises HyperGSError, naming the network's parts, where `names` holds one that is not a top-level part."""
-    parts = {name for name, _ in model.named_children()}
-    unknown = sorted(set(names) - parts)
+    """Raises HyperGSError, naming the network's top-level parts, where `names` holds one that is not a part
+    (a module's dotted name: `encoder`, or `encoder.0.4` for one block of it)."""
+    modules = {name for name, _ in model.named_modules() if name}
+    unknown = sorted(set(names) - modules)
     if unknown:
-        raise HyperGSError(f"{flag}: {', '.join(unknown)} not parts of this network ({', '.join(sorted(parts))})")
+        parts = sorted(name for name, _ in model.named_children())
+        raise HyperGSError(f"{flag}: {', '.join(unknown)} not parts of this network ({', '.join(parts)}, "
+                           "or a dotted name inside one)")
+
+
+def part_of(parameter_name: str, parts) -> str | None:
+    """The most specific of `parts` (dotted module names) that holds the parameter, or None."""
+    holding = [part for part in parts if parameter_name.startswith(part + ".")]
+    return max(holding, key=len, default=None)
 
 
 def train_only(model, parts) -> None:
-    """Freeze every parameter outside the top-level `parts` (--train-only)."""
+    """Freeze every parameter outside `parts` (--train-only)."""
     check_parts(model, parts, "--train-only")
     for name, parameter in model.named_parameters():
-        parameter.requires_grad_(name.split(".")[0] in parts)
+        parameter.requires_grad_(part_of(name, parts) is not None)
 
 
 def lr_groups(model, lr_scale: dict) -> list[dict]:
-    """The trainable parameters in AdamW groups: one per learning-rate factor, the parameters of each
-    top-level part named in `lr_scale` (part -> factor) with its factor, the rest with 1."""
+    """The trainable parameters in AdamW groups: one per learning-rate factor, the parameters of each part
+    named in `lr_scale` (part -> factor) with its factor, the most specific part deciding (`encoder=0.1
+    encoder.0.4=1`: a new block at the full rate in a slow encoder), the rest with 1."""
     check_parts(model, lr_scale, "--lr-scale")
     groups = {}
     for name, parameter in model.named_parameters():
         if parameter.requires_grad:
-            groups.setdefault(float(lr_scale.get(name.split(".")[0], 1.0)), []).append(parameter)
+            groups.setdefault(float(lr_scale.get(part_of(name, lr_scale), 1.0)), []).append(parameter)
     return [dict(params=params, lr_scale=scale) for scale, params in groups.items()]
 
 

@@ -77,15 +77,13 @@ def export_onnx(model, path, int8: dict | None = None) -> None:
         dynamic = {"frames": {0: batch, 1: m * rows, 2: m * cols}}
     program = torch.onnx.export(model.eval(), inputs, input_names=names, output_names=["params"],
                                 opset_version=ONNX_OPSET, dynamo=True, external_data=False, dynamic_shapes=dynamic)
-    if not int8:
-        with AtomicOutput(path) as temp:
-            program.save(str(temp))
-        return
-    from .int8 import quantize_onnx
-    with tempfile.TemporaryDirectory() as folder:
-        program.save(str(Path(folder) / "float.onnx"))
-        with AtomicOutput(path) as temp:
+    with AtomicOutput(path) as temp, tempfile.TemporaryDirectory() as folder:
+        if int8:  # quantised from the float graph
+            from .int8 import quantize_onnx
+            program.save(str(Path(folder) / "float.onnx"))
             quantize_onnx(model, int8, Path(folder) / "float.onnx", temp)
+        else:
+            program.save(str(temp))
 
 
 def rebox(directory, name: str) -> float | None:

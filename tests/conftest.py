@@ -9,11 +9,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def write_video(path, frames, fps=12):
-    """Lossless H.264 (yuv444p, crf 0) of uint8 RGB frames [T, H, W, 3]."""
+def write_video(path, frames, fps=12, rotation=0):
+    """Lossless H.264 (yuv444p, crf 0) of uint8 RGB frames [T, H, W, 3], stored as they are with a display
+    rotation of `rotation` degrees counter-clockwise in the container (a phone's portrait video: 90 or 270)."""
     with av.open(str(path), "w") as container:
         stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
         stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
+        if rotation:
+            stream.set_display_rotation(rotation)
         for f in frames:
             container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")))
         container.mux(stream.encode())

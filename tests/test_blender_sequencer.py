@@ -121,6 +121,16 @@ def test_cutting_the_scene_strip_keeps_the_timing(session):
     assert r["psnr_vs_core"] > 40 and r["psnr_source"] > r["psnr_wrong_frame"] + 1, r
 
 
+def test_a_phone_portrait_video_converts_upright_as_its_strip_shows(session):
+    """A portrait video stored as landscape frames with a display rotation: Blender 5's movie strip shows it
+    upright (4.2's ignores the rotation), and so does the converted clip, in the strip's place."""
+    r = step(session, "portrait")
+    assert r["strip_size"] == [144, 256] and r["psnr_movie"] > 40, r  # this Blender shows the movie upright
+    assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [144, 256, 100], r
+    assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the upright frame
+    assert r["psnr_source"] > r["psnr_reference"] - PSNR_MARGIN, r
+
+
 # ----------------------------------------------------------------------------------------------------
 # Blender side (run as a script: python test_blender_sequencer.py ZIP WORKDIR OUT.json)
 
@@ -293,6 +303,29 @@ def run_session(zip_path, work, out_path):
         scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("a"))
         set_strip_range(scene_strip, 4, 13)  # the user trims the converted clip: frame 4 still shows source frame 3
         return compare(f12(4, "cut_4"), "a", 3)
+
+    @record("portrait")
+    def _():
+        from conftest import write_video
+        stored = np.stack([f for _, f in iter_frames(str(SAMPLE), range(4))])  # landscape, as a phone stores it
+        phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90)  # shown turned: 144 x 256
+        upright = np.rot90(stored[1], 1) / np.float32(255)
+        for s in compat.all_strips(editor):
+            s.mute = True
+        scene.render.resolution_x, scene.render.resolution_y = 144, 256  # a portrait edit
+        strip = strips.new_movie(name="phone", filepath=str(phone), channel=8, frame_start=70)
+        select("phone")
+        movie = f12(71, "portrait_movie")
+        result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
+        scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("phone"))
+        r = scene_strip.scene.render
+        image = f12(71, "portrait_scene")
+        core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=1, stop=2),
+                             144, 256, [0])[0]
+        return dict(result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
+                    clip_resolution=[r.resolution_x, r.resolution_y, r.resolution_percentage],
+                    psnr_movie=float(psnr(movie, upright)), psnr_source=float(psnr(image, upright)),
+                    psnr_reference=float(psnr(core, upright)), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
 
     return results
 

@@ -29,6 +29,25 @@ def test_probe_and_read(clip):
     assert square.shape == (2, 32, 32, 3)
 
 
+@pytest.mark.parametrize("rotation", [90, 180, 270])
+def test_a_video_with_a_display_rotation_comes_upright(tmp_path, rotation):
+    """A phone's portrait video (landscape frames and a display rotation in the container) is read as players
+    and Blender 5's Sequencer show it: probe's size and every frame upright, also resized and cropped."""
+    stored = np.zeros((3, 48, 80, 3), np.uint8)
+    stored[:, :8, :16] = 255  # a white block in the stored top-left corner
+    stored[:, :, :, 1] = np.arange(3)[:, None, None] * 40
+    path = write_video(tmp_path / "phone.mp4", stored, rotation=rotation)
+    turns = rotation // 90
+    upright = np.rot90(stored, turns, axes=(1, 2))
+    info = probe(path)
+    assert (info.width, info.height) == (upright.shape[2], upright.shape[1]) and info.num_frames == 3
+    frames, _, _ = read_frames(path)
+    np.testing.assert_allclose(frames, upright, atol=2)
+    square, _, _ = read_frames(path, size=24)
+    assert square.shape == (3, 24, 24, 3)
+    np.testing.assert_allclose(square, np.stack([resize_crop(f, 24) for f in upright]), atol=8)
+
+
 def test_iter_frames_streams_a_range(clip):
     got = [i for i, _ in iter_frames(clip, [2, 3, 4])]
     assert got == [2, 3, 4]

@@ -1,5 +1,9 @@
 """Video files with PyAV: probing and streamed decoding, with the short-side resize + centre crop
-done while converting each frame to RGB. `frames.py` dispatches between this and image sequences."""
+done while converting each frame to RGB. `frames.py` dispatches between this and image sequences.
+
+Frames come upright: a phone's portrait video is stored as landscape frames with a display rotation in its
+container, which players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it). Sizes are the
+upright ones too."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,12 +18,17 @@ from ..errors import VideoError
 
 @dataclass(frozen=True)
 class VideoInfo:
-    """What `probe` tells of a video or an image sequence."""
+    """What `probe` tells of a video or an image sequence: the size of its frames upright."""
     path: str
     width: int
     height: int
     fps: float
     num_frames: int
+
+
+def quarter_turns(frame) -> int:
+    """Counter-clockwise quarter turns that make a decoded frame upright (its display rotation, 0-3)."""
+    return round(frame.rotation / 90) % 4
 
 
 def _open(path):
@@ -41,7 +50,8 @@ def _open(path):
 
 
 def probe(path) -> VideoInfo:
-    """Size, frame rate and frame count. Counts by decoding when the container does not say."""
+    """Upright size, frame rate and frame count. Decodes the first frame (which carries the container's display
+    rotation), and counts by decoding when the container does not say."""
     import av
 
     container, stream = _open(path)
@@ -51,13 +61,17 @@ def probe(path) -> VideoInfo:
         if width > 0 and height > 0:  # before decoding anything
             limits.check_image_size(width, height, str(path))
         count = stream.frames
-        if count <= 0:
-            try:
-                count = sum(1 for _ in container.decode(stream))
-            except av.error.FFmpegError as e:
-                raise VideoError(f"{path}: cannot decode video ({e})") from e
-    if count <= 0 or width <= 0 or height <= 0:
+        try:
+            frames = container.decode(stream)
+            first = next(frames, None)
+            if count <= 0:
+                count = (first is not None) + sum(1 for _ in frames)
+        except av.error.FFmpegError as e:
+            raise VideoError(f"{path}: cannot decode video ({e})") from e
+    if first is None or count <= 0 or width <= 0 or height <= 0:
         raise VideoError(f"{path}: video has no decodable frames")
+    if quarter_turns(first) % 2:
+        width, height = height, width
     limits.FRAMES.check(count, str(path))
     return VideoInfo(str(path), width, height, fps, count)
 
@@ -91,12 +105,14 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
 
 
 def to_canvas(frame, size: int | None) -> np.ndarray:
-    """An av.VideoFrame as RGB uint8; resized (short side = size, area filter) and centre-cropped."""
+    """An av.VideoFrame as RGB uint8, upright; resized (short side = size, area filter) and centre-cropped."""
+    turns = quarter_turns(frame)
     if size is None:
-        return frame.to_ndarray(format="rgb24")
-    w, h = frame.width, frame.height
+        return np.ascontiguousarray(np.rot90(frame.to_ndarray(format="rgb24"), turns))
+    w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)  # upright
     scale = size / min(w, h)
     rw, rh = max(size, round(w * scale)), max(size, round(h * scale))
-    rgb = frame.to_ndarray(format="rgb24", width=rw, height=rh, interpolation="AREA")
+    stored_w, stored_h = (rh, rw) if turns % 2 else (rw, rh)  # resized as stored, then turned
+    rgb = np.rot90(frame.to_ndarray(format="rgb24", width=stored_w, height=stored_h, interpolation="AREA"), turns)
     y0, x0 = (rh - size) // 2, (rw - size) // 2
     return np.ascontiguousarray(rgb[y0:y0 + size, x0:x0 + size])

@@ -9,16 +9,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def write_video(path, frames, fps=12, rotation=0):
+def write_video(path, frames, fps=12, rotation=0, slots=None):
     """Lossless H.264 (yuv444p, crf 0) of uint8 RGB frames [T, H, W, 3], stored as they are with a display
-    rotation of `rotation` degrees counter-clockwise in the container (a phone's portrait video: 90 or 270)."""
+    rotation of `rotation` degrees counter-clockwise in the container (a phone's portrait video: 90 or 270).
+    slots: each frame's time in 1 / fps seconds (a variable-rate video where they skip some; default 0, 1, ...)."""
+    from fractions import Fraction
     with av.open(str(path), "w") as container:
         stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
         stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
         if rotation:
             stream.set_display_rotation(rotation)
-        for f in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")))
+        for f, slot in zip(frames, range(len(frames)) if slots is None else slots):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")
+            frame.pts, frame.time_base = slot, Fraction(1, fps)
+            container.mux(stream.encode(frame))
         container.mux(stream.encode())
     return path
 

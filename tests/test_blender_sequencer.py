@@ -121,14 +121,17 @@ def test_cutting_the_scene_strip_keeps_the_timing(session):
     assert r["psnr_vs_core"] > 40 and r["psnr_source"] > r["psnr_wrong_frame"] + 1, r
 
 
-def test_a_phone_portrait_video_converts_upright_as_its_strip_shows(session):
-    """A portrait video stored as landscape frames with a display rotation: Blender 5's movie strip shows it
-    upright (4.2's ignores the rotation), and so does the converted clip, in the strip's place."""
+def test_a_phone_video_converts_upright_and_on_time_as_its_strip_shows(session):
+    """A phone's video: landscape frames with a display rotation, at a variable rate. Blender 5's movie strip
+    shows it upright (4.2's ignores the rotation) and on its nominal rate, holding a frame where a slot is
+    skipped; the converted clip shows the same frames, in the strip's place."""
     r = step(session, "portrait")
     assert r["strip_size"] == [144, 256] and r["psnr_movie"] > 40, r  # this Blender shows the movie upright
     assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [144, 256, 100], r
-    assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the upright frame
+    assert r["clip_frames"] == r["strip_frames"] == [70, 77], r  # 7 slots of 1/24 s
+    assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the strip's frame 4...
     assert r["psnr_source"] > r["psnr_reference"] - PSNR_MARGIN, r
+    assert r["psnr_source"] > r["psnr_next_frame"] + 1, r  # ...which is the 4th frame stored, not the 5th
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -307,25 +310,30 @@ def run_session(zip_path, work, out_path):
     @record("portrait")
     def _():
         from conftest import write_video
-        stored = np.stack([f for _, f in iter_frames(str(SAMPLE), range(4))])  # landscape, as a phone stores it
-        phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90)  # shown turned: 144 x 256
-        upright = np.rot90(stored[1], 1) / np.float32(255)
+        # a phone's video: landscape frames turned by the container, at a variable rate (slot 3 of 1/24 s skipped,
+        # so the strip's frame 4 is the 4th frame, not the 5th); frames 8 apart, so a frame's neighbour differs
+        stored = np.stack([f for _, f in iter_frames(str(SAMPLE), range(0, 48, 8))])
+        phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90, slots=[0, 1, 2, 4, 5, 6])
+        upright = {k: np.rot90(stored[i], 1) / np.float32(255) for k, i in ((4, 3), (5, 4))}  # the strip's frames
         for s in compat.all_strips(editor):
             s.mute = True
         scene.render.resolution_x, scene.render.resolution_y = 144, 256  # a portrait edit
         strip = strips.new_movie(name="phone", filepath=str(phone), channel=8, frame_start=70)
         select("phone")
-        movie = f12(71, "portrait_movie")
+        movie = f12(74, "portrait_movie")
         result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
         scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("phone"))
         r = scene_strip.scene.render
-        image = f12(71, "portrait_scene")
-        core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=1, stop=2),
+        image = f12(74, "portrait_scene")
+        core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=4, stop=5),
                              144, 256, [0])[0]
         return dict(result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
+                    strip_frames=[strip.frame_final_start, strip.frame_final_end],
                     clip_resolution=[r.resolution_x, r.resolution_y, r.resolution_percentage],
-                    psnr_movie=float(psnr(movie, upright)), psnr_source=float(psnr(image, upright)),
-                    psnr_reference=float(psnr(core, upright)), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
+                    clip_frames=[scene_strip.frame_final_start, scene_strip.frame_final_end],
+                    psnr_movie=float(psnr(movie, upright[4])), psnr_source=float(psnr(image, upright[4])),
+                    psnr_next_frame=float(psnr(image, upright[5])),
+                    psnr_reference=float(psnr(core, upright[4])), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
 
     return results
 

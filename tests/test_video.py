@@ -48,6 +48,47 @@ def test_a_video_with_a_display_rotation_comes_upright(tmp_path, rotation):
     np.testing.assert_allclose(square, np.stack([resize_crop(f, 24) for f in upright]), atol=8)
 
 
+def test_a_variable_rate_video_is_read_on_its_nominal_rate_as_blender_shows_it(tmp_path):
+    """A phone's variable-rate video, frames at slots 0 1 2 3 4 6 8 9 10 11 of 1/24 s: Blender's movie strip shows
+    12 frames at 24 fps, holding a frame where a slot is skipped (bpy 5.0.1 and 4.2.23 read frames 10 30 50 70 90
+    90 109 109 130 150 170 190 from this file's grey levels). The clip's frames must be those, or the Convert's
+    scene strip drifts from the movie strip after each gap."""
+    grey = np.arange(10) * 20 + 10
+    frames = np.broadcast_to(grey[:, None, None, None].astype(np.uint8), (10, 48, 64, 3)).copy()
+    path = write_video(tmp_path / "vfr.mp4", frames, fps=24, slots=[0, 1, 2, 3, 4, 6, 8, 9, 10, 11])
+    info = probe(path)
+    assert (info.fps, info.num_frames) == (24.0, 12)
+    shown = [0, 1, 2, 3, 4, 4, 5, 5, 6, 7, 8, 9]  # the frame of each slot
+    np.testing.assert_allclose([f[0, 0, 0] for _, f in iter_frames(path)], grey[shown], atol=1)
+    picked = list(iter_frames(path, [5, 7, 11]))
+    assert [i for i, _ in picked] == [5, 7, 11]
+    np.testing.assert_allclose([f[0, 0, 0] for _, f in picked], grey[[4, 5, 9]], atol=1)
+    with pytest.raises(VideoError, match="frame 12 is past the end"):
+        list(iter_frames(path, [12]))
+
+
+def test_a_cut_off_video_says_so(tmp_path):
+    """A file cut in half whose header (moov first) still states the whole duration: the frames that are there
+    are read, then a clear error instead of a second of frozen frames passed off as the rest."""
+    import av
+    path = tmp_path / "whole.mp4"
+    with av.open(str(path), "w", options={"movflags": "faststart"}) as container:
+        stream = container.add_stream("libx264", rate=24, options={"crf": "0"})
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv444p"
+        for i in range(72):
+            noise = np.random.default_rng(i).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(noise, format="rgb24")))
+        container.mux(stream.encode())
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    assert probe(cut).num_frames == 72
+    read = []
+    with pytest.raises(VideoError, match=r"cut.mp4: only \d+ of its 72 frames can be decoded: the file is cut off"):
+        for index, _ in iter_frames(cut):
+            read.append(index)
+    assert 24 < len(read) < 72
+
+
 def test_iter_frames_streams_a_range(clip):
     got = [i for i, _ in iter_frames(clip, [2, 3, 4])]
     assert got == [2, 3, 4]

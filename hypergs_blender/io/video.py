@@ -1,11 +1,14 @@
 """Video files with PyAV: probing and streamed decoding, with the short-side resize + centre crop
 done while converting each frame to RGB. `frames.py` dispatches between this and image sequences.
 
-Frames come upright: a phone's portrait video is stored as landscape frames with a display rotation in its
-container, which players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it). Sizes are the
-upright ones too."""
+Frames come as Blender's movie strips show them, so that a converted clip matches its strip frame for frame:
+- upright: a phone's portrait video is stored as landscape frames with a display rotation in its container, which
+  players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it); sizes are the upright ones too;
+- on the nominal rate's grid (`frame_grid`, `on_grid`): a phone's variable-rate video skips slots, where the frame
+  before is held."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -49,18 +52,38 @@ def _open(path):
     return container, stream
 
 
+def frame_grid(container, stream) -> tuple[float, int]:
+    """(rate, count): the frames a video shows, as Blender's movie strips show them (movie_read.cc): `rate` a
+    second, ffmpeg's guess of the nominal rate (a phone's variable-rate video averages less), and as many as the
+    stream's duration (else the container's, less the video's delay after the audio) holds; count 0 where the
+    file says neither."""
+    import av
+
+    rate = float(stream.guessed_rate or stream.average_rate or 24)
+    if not stream.time_base:  # no timestamps to place frames by
+        return rate, 0
+    if stream.duration is not None:
+        seconds = float(stream.duration * stream.time_base)
+    elif container.duration is not None:
+        start = lambda s: float(s.start_time * s.time_base) if s.start_time is not None else 0.0  # noqa: E731
+        audio = next((start(a) for a in container.streams.audio), 0.0)
+        seconds = container.duration / av.time_base - max(0.0, start(stream) - audio)
+    else:
+        return rate, 0
+    return rate, math.floor(seconds * rate + 0.5)
+
+
 def probe(path) -> VideoInfo:
-    """Upright size, frame rate and frame count. Decodes the first frame (which carries the container's display
-    rotation), and counts by decoding when the container does not say."""
+    """Upright size, frame rate and frame count on the grid of `frame_grid`. Decodes the first frame (which
+    carries the container's display rotation), and counts by decoding when the file does not say."""
     import av
 
     container, stream = _open(path)
     with container:
-        fps = float(stream.average_rate or stream.guessed_rate or 24)
         width, height = stream.codec_context.width, stream.codec_context.height
         if width > 0 and height > 0:  # before decoding anything
             limits.check_image_size(width, height, str(path))
-        count = stream.frames
+        fps, count = frame_grid(container, stream)
         try:
             frames = container.decode(stream)
             first = next(frames, None)
@@ -88,8 +111,10 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
     container, stream = _open(path)
     with container:
         try:
+            rate, count = frame_grid(container, stream)
+            decoded = container.decode(stream)
             position = 0
-            for index, frame in enumerate(container.decode(stream)):
+            for index, frame in (on_grid(decoded, stream, rate, count) if count else enumerate(decoded)):
                 if wanted is not None:
                     if position >= len(wanted):
                         break
@@ -100,8 +125,32 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
                 yield index, to_canvas(frame, size)
         except av.error.FFmpegError as e:
             raise VideoError(f"{path}: cannot decode video ({e})") from e
+        except VideoError as e:
+            raise VideoError(f"{path}: {e}") from e
     if wanted is not None and position < len(wanted):
         raise VideoError(f"{path}: frame {wanted[position]} is past the end of the video")
+
+
+def on_grid(decoded, stream, rate: float, count: int):
+    """(k, the frame shown k / rate seconds after the stream's start) for k < count, as Blender's movie strip
+    picks it: the last frame whose timestamp is not later. A variable-rate video's frame is held where it skips a
+    slot, and frames that come faster than the rate are passed over; a constant-rate video gives each frame once,
+    in order (a frame without a timestamp takes the next slot); the last frame is held to the stated duration's
+    end. Raises VideoError where the frames end more than a second before it (a cut-off file)."""
+    ticks_per_frame = 1 / (rate * float(stream.time_base))
+    start = stream.start_time or 0
+    ticks = lambda frame, n: frame.pts if frame.pts is not None else start + round(n * ticks_per_frame)  # noqa: E731
+    shown, upcoming, taken = None, next(decoded, None), 0
+    for k in range(count):
+        due = start + round(k * ticks_per_frame)
+        while upcoming is not None and (shown is None or ticks(upcoming, taken) <= due):
+            shown, upcoming, taken = upcoming, next(decoded, None), taken + 1
+        if shown is None:
+            return
+        last_end = ticks(shown, taken - 1) + max(shown.duration or 0, ticks_per_frame)
+        if upcoming is None and due >= last_end + rate * ticks_per_frame:  # more missing than a rounding's second
+            raise VideoError(f"only {taken} of its {count} frames can be decoded: the file is cut off")
+        yield k, shown
 
 
 def to_canvas(frame, size: int | None) -> np.ndarray:

@@ -1,5 +1,6 @@
 """The sRGB transfer function, extended to all reals (odd, and the standard formula above 1), so that
-additive sums outside [0, 1] convert both ways without clipping."""
+additive sums outside [0, 1] convert both ways without clipping; and HDR video (BT.2100 HLG or PQ, BT.2020
+primaries) to the sRGB picture Blender 5's Sequencer shows of it."""
 from __future__ import annotations
 
 import numpy as np
@@ -28,3 +29,33 @@ def srgb_image_to_linear_rgba(image: np.ndarray) -> np.ndarray:
     out = np.ones((h, w, 4), np.float32)
     out[..., :3] = srgb_to_linear(np.maximum(image, 0))[::-1]
     return out
+
+
+# BT.2100 HLG's inverse OETF (ARIB STD-B67) and its OOTF for a 1000-nit display
+HLG_A, HLG_B, HLG_C = 0.17883277, 0.28466892, 0.55991073
+HLG_PEAK_NITS, HLG_GAMMA = 1000.0, 1.2
+# SMPTE ST 2084 (PQ)
+PQ_M1, PQ_M2, PQ_C1, PQ_C2, PQ_C3 = 2610 / 16384, 2523 / 4096 * 128, 3424 / 4096, 2413 / 4096 * 32, 2392 / 4096 * 32
+SDR_WHITE_NITS = 100.0  # Blender's colour management: scene-linear 1.0 is 100 nits on its HDR display spaces
+BT2020_TO_BT709 = np.array([[1.6605, -0.5876, -0.0728],  # linear RGB, the primaries of BT.2020 to sRGB's
+                            [-0.1246, 1.1329, -0.0083],
+                            [-0.0182, -0.1006, 1.1187]], np.float32)
+BT2020_LUMA = np.array([0.2627, 0.6780, 0.0593], np.float32)
+
+
+def hdr_to_srgb(coded: np.ndarray, transfer: str) -> np.ndarray:
+    """HDR video's decoded RGB [..., 3] in [0, 1] (`transfer` "hlg" or "pq"; BT.2020 primaries) -> the sRGB-encoded
+    values in [0, 1] that Blender 5 shows of it: to light in nits (HLG through its 1000-nit OOTF), 100 nits to 1.0,
+    BT.2020 to BT.709 primaries, clipped, sRGB-encoded. Blender 4.2 shows the coded values as they are."""
+    e = np.clip(np.asarray(coded, np.float32), 0, 1)
+    if transfer == "hlg":
+        scene = np.where(e <= 0.5, e * e / 3, (np.exp((e - HLG_C) / HLG_A) + HLG_B) / 12)
+        luma = np.maximum(scene @ BT2020_LUMA, 1e-12)[..., None]
+        nits = HLG_PEAK_NITS * luma ** (HLG_GAMMA - 1) * scene
+    elif transfer == "pq":
+        p = e ** (1 / PQ_M2)
+        nits = 10000 * (np.maximum(p - PQ_C1, 0) / (PQ_C2 - PQ_C3 * p)) ** (1 / PQ_M1)
+    else:
+        raise ValueError(f"unknown HDR transfer {transfer!r} (hlg or pq)")
+    linear = (nits / SDR_WHITE_NITS) @ BT2020_TO_BT709.T
+    return linear_to_srgb(np.clip(linear, 0, 1))

@@ -9,16 +9,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def write_video(path, frames, fps=12, rotation=0, slots=None):
+HDR_TRC = {"hlg": 18, "pq": 16}  # ffmpeg's AVCOL_TRC_ARIB_STD_B67, AVCOL_TRC_SMPTEST2084
+
+
+def write_video(path, frames, fps=12, rotation=0, slots=None, hdr=None):
     """Lossless H.264 (yuv444p, crf 0) of uint8 RGB frames [T, H, W, 3], stored as they are with a display
     rotation of `rotation` degrees counter-clockwise in the container (a phone's portrait video: 90 or 270).
-    slots: each frame's time in 1 / fps seconds (a variable-rate video where they skip some; default 0, 1, ...)."""
+    slots: each frame's time in 1 / fps seconds (a variable-rate video where they skip some; default 0, 1, ...).
+    hdr: "hlg" or "pq": the values tagged as that HDR transfer with BT.2020 primaries and matrix (an iPhone's)."""
     from fractions import Fraction
     with av.open(str(path), "w") as container:
         stream = container.add_stream("libx264", rate=fps, options={"crf": "0"})
         stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "yuv444p"
         if rotation:
             stream.set_display_rotation(rotation)
+        if hdr:
+            codec = stream.codec_context
+            codec.color_primaries, codec.color_trc, codec.colorspace = 9, HDR_TRC[hdr], 9
         for f, slot in zip(frames, range(len(frames)) if slots is None else slots):
             frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")
             frame.pts, frame.time_base = slot, Fraction(1, fps)

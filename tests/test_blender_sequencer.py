@@ -121,12 +121,14 @@ def test_cutting_the_scene_strip_keeps_the_timing(session):
     assert r["psnr_vs_core"] > 40 and r["psnr_source"] > r["psnr_wrong_frame"] + 1, r
 
 
-def test_a_phone_video_converts_upright_and_on_time_as_its_strip_shows(session):
-    """A phone's video: landscape frames with a display rotation, at a variable rate. Blender 5's movie strip
-    shows it upright (4.2's ignores the rotation) and on its nominal rate, holding a frame where a slot is
-    skipped; the converted clip shows the same frames, in the strip's place."""
-    r = step(session, "portrait")
-    assert r["strip_size"] == [144, 256] and r["psnr_movie"] > 40, r  # this Blender shows the movie upright
+def test_a_phone_video_converts_as_its_strip_shows_it(session):
+    """A phone's video: landscape frames with a display rotation, at a variable rate, in HLG. Blender 5's movie
+    strip shows it upright (4.2's ignores the rotation), on its nominal rate (a frame held where a slot is
+    skipped) and colour-managed (4.2 shows the coded values); the core reads those frames, and the converted
+    clip shows them in the strip's place."""
+    r = step(session, "phone")
+    assert r["strip_size"] == [144, 256] and r["strip_colorspace"] == "Rec.2100-HLG", r  # this Blender's reading
+    assert r["psnr_decoded_vs_movie"] > 35, r  # the core's frame 4 is what the strip shows there
     assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [144, 256, 100], r
     assert r["clip_frames"] == r["strip_frames"] == [70, 77], r  # 7 slots of 1/24 s
     assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the strip's frame 4...
@@ -307,33 +309,34 @@ def run_session(zip_path, work, out_path):
         set_strip_range(scene_strip, 4, 13)  # the user trims the converted clip: frame 4 still shows source frame 3
         return compare(f12(4, "cut_4"), "a", 3)
 
-    @record("portrait")
+    @record("phone")
     def _():
         from conftest import write_video
         # a phone's video: landscape frames turned by the container, at a variable rate (slot 3 of 1/24 s skipped,
-        # so the strip's frame 4 is the 4th frame, not the 5th); frames 8 apart, so a frame's neighbour differs
+        # so the strip's frame 4 is the 4th frame, not the 5th), HLG HDR; frames 8 apart, so neighbours differ
         stored = np.stack([f for _, f in iter_frames(str(SAMPLE), range(0, 48, 8))])
-        phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90, slots=[0, 1, 2, 4, 5, 6])
-        upright = {k: np.rot90(stored[i], 1) / np.float32(255) for k, i in ((4, 3), (5, 4))}  # the strip's frames
+        phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90, slots=[0, 1, 2, 4, 5, 6], hdr="hlg")
         for s in compat.all_strips(editor):
             s.mute = True
         scene.render.resolution_x, scene.render.resolution_y = 144, 256  # a portrait edit
         strip = strips.new_movie(name="phone", filepath=str(phone), channel=8, frame_start=70)
         select("phone")
-        movie = f12(74, "portrait_movie")
+        movie = {k: f12(70 + k, f"phone_movie_{k}") for k in (4, 5)}  # what Blender shows of the file
+        decoded = dict(iter_frames(str(phone), [4]))[4] / np.float32(255)
         result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
         scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("phone"))
         r = scene_strip.scene.render
-        image = f12(74, "portrait_scene")
+        image = f12(74, "phone_scene")
         core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=4, stop=5),
                              144, 256, [0])[0]
         return dict(result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
+                    strip_colorspace=strip.colorspace_settings.name,
                     strip_frames=[strip.frame_final_start, strip.frame_final_end],
                     clip_resolution=[r.resolution_x, r.resolution_y, r.resolution_percentage],
                     clip_frames=[scene_strip.frame_final_start, scene_strip.frame_final_end],
-                    psnr_movie=float(psnr(movie, upright[4])), psnr_source=float(psnr(image, upright[4])),
-                    psnr_next_frame=float(psnr(image, upright[5])),
-                    psnr_reference=float(psnr(core, upright[4])), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
+                    psnr_decoded_vs_movie=float(psnr(decoded, movie[4])),
+                    psnr_source=float(psnr(image, movie[4])), psnr_next_frame=float(psnr(image, movie[5])),
+                    psnr_reference=float(psnr(core, decoded)), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
 
     return results
 

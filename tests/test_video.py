@@ -89,6 +89,23 @@ def test_a_cut_off_video_says_so(tmp_path):
     assert 24 < len(read) < 72
 
 
+@pytest.mark.parametrize("hdr", ["hlg", "pq"])
+def test_hdr_video_is_read_as_blender_5_shows_it(tmp_path, hdr):
+    """An iPhone's HLG (or a PQ) video: Blender 5 colour-manages it, so a converted clip must show the sRGB
+    picture of its light, not its coded values (which are far darker: mid-grey 128 shows as about 188)."""
+    import av
+
+    from hypergs_blender.colour import hdr_to_srgb
+    ramp = np.broadcast_to(np.linspace(0, 255, 64).astype(np.uint8)[None, None, :, None], (2, 48, 64, 3)).copy()
+    ramp[:, :16, :, 1:] = 0  # a red band
+    path = write_video(tmp_path / "hdr.mp4", ramp, hdr=hdr)
+    with av.open(str(path)) as container:
+        coded = next(container.decode(video=0)).to_ndarray(format="rgb48le").astype(np.float32) / 65535
+    frames, _, _ = read_frames(path)
+    np.testing.assert_allclose(frames[0], np.round(hdr_to_srgb(coded, hdr) * 255), atol=1)
+    assert frames[0, 30, 32].mean() > 160  # mid-grey, brightened
+
+
 def test_iter_frames_streams_a_range(clip):
     got = [i for i, _ in iter_frames(clip, [2, 3, 4])]
     assert got == [2, 3, 4]

@@ -5,7 +5,9 @@ Frames come as Blender's movie strips show them, so that a converted clip matche
 - upright: a phone's portrait video is stored as landscape frames with a display rotation in its container, which
   players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it); sizes are the upright ones too;
 - on the nominal rate's grid (`frame_grid`, `on_grid`): a phone's variable-rate video skips slots, where the frame
-  before is held."""
+  before is held;
+- HDR (BT.2020 with HLG or PQ, `hdr_transfer`) as the sRGB picture of its light (colour.hdr_to_srgb), as Blender 5
+  colour-manages it (4.2 shows the coded values)."""
 from __future__ import annotations
 
 import math
@@ -16,6 +18,7 @@ from typing import Iterator
 import numpy as np
 
 from .. import limits
+from ..colour import hdr_to_srgb
 from ..errors import VideoError
 
 
@@ -27,6 +30,16 @@ class VideoInfo:
     height: int
     fps: float
     num_frames: int
+
+
+# ffmpeg's codes of the HDR video Blender 5 colour-manages (movie_read.cc): BT.2020 primaries with a transfer
+HDR_TRANSFERS = {18: "hlg", 16: "pq"}  # AVCOL_TRC_ARIB_STD_B67, AVCOL_TRC_SMPTEST2084
+BT2020_PRIMARIES = 9  # AVCOL_PRI_BT2020
+
+
+def hdr_transfer(frame) -> str | None:
+    """"hlg" or "pq" for a frame of HDR video (BT.2020 primaries), else None."""
+    return HDR_TRANSFERS.get(int(frame.color_trc)) if int(frame.color_primaries) == BT2020_PRIMARIES else None
 
 
 def quarter_turns(frame) -> int:
@@ -154,14 +167,25 @@ def on_grid(decoded, stream, rate: float, count: int):
 
 
 def to_canvas(frame, size: int | None) -> np.ndarray:
-    """An av.VideoFrame as RGB uint8, upright; resized (short side = size, area filter) and centre-cropped."""
+    """An av.VideoFrame as RGB uint8, upright; resized (short side = size, area filter) and centre-cropped. HDR
+    video is decoded at 16 bits and mapped to the sRGB picture Blender 5 shows of it (colour.hdr_to_srgb)."""
     turns = quarter_turns(frame)
     if size is None:
-        return np.ascontiguousarray(np.rot90(frame.to_ndarray(format="rgb24"), turns))
+        rgb = np.rot90(rgb_of(frame), turns)
+        return np.ascontiguousarray(rgb)
     w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)  # upright
     scale = size / min(w, h)
     rw, rh = max(size, round(w * scale)), max(size, round(h * scale))
     stored_w, stored_h = (rh, rw) if turns % 2 else (rw, rh)  # resized as stored, then turned
-    rgb = np.rot90(frame.to_ndarray(format="rgb24", width=stored_w, height=stored_h, interpolation="AREA"), turns)
+    rgb = np.rot90(rgb_of(frame, width=stored_w, height=stored_h, interpolation="AREA"), turns)
     y0, x0 = (rh - size) // 2, (rw - size) // 2
     return np.ascontiguousarray(rgb[y0:y0 + size, x0:x0 + size])
+
+
+def rgb_of(frame, **resize) -> np.ndarray:
+    """The frame as uint8 RGB (swscale's `resize` arguments, if any), HDR mapped to sRGB."""
+    transfer = hdr_transfer(frame)
+    if transfer is None:
+        return frame.to_ndarray(format="rgb24", **resize)
+    coded = frame.to_ndarray(format="rgb48le", **resize).astype(np.float32) / 65535
+    return np.round(hdr_to_srgb(coded, transfer) * 255).astype(np.uint8)

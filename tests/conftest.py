@@ -9,9 +9,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-HDR_TRC = {"hlg": 18, "pq": 16}  # ffmpeg's AVCOL_TRC_ARIB_STD_B67, AVCOL_TRC_SMPTEST2084
-
-
 def write_video(path, frames, fps=12, rotation=0, slots=None, hdr=None):
     """Lossless H.264 (yuv444p, crf 0) of uint8 RGB frames [T, H, W, 3], stored as they are with a display
     rotation of `rotation` degrees counter-clockwise in the container (a phone's portrait video: 90 or 270).
@@ -24,8 +21,10 @@ def write_video(path, frames, fps=12, rotation=0, slots=None, hdr=None):
         if rotation:
             stream.set_display_rotation(rotation)
         if hdr:
+            from hypergs_blender.io.video import BT2020_PRIMARIES, HDR_TRANSFERS
             codec = stream.codec_context
-            codec.color_primaries, codec.color_trc, codec.colorspace = 9, HDR_TRC[hdr], 9
+            codec.color_primaries, codec.colorspace = BT2020_PRIMARIES, 9  # AVCOL_SPC_BT2020_NCL
+            codec.color_trc = next(code for code, name in HDR_TRANSFERS.items() if name == hdr)
         for f, slot in zip(frames, range(len(frames)) if slots is None else slots):
             frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")
             frame.pts, frame.time_base = slot, Fraction(1, fps)

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from hypergs_blender.colour import hdr_to_srgb, linear_to_srgb
+from hypergs_blender.colour import hdr_to_srgb, hdr_to_srgb_u8, linear_to_srgb
 
 
 def hlg_inverse_oetf(e: float) -> float:  # BT.2100, written out for one value
@@ -40,3 +40,15 @@ def test_hdr_to_srgb_clips_bright_and_out_of_gamut_colours():
     assert green[1] > 0.5 and green[0] == 0 and green[2] == 0
     with pytest.raises(ValueError, match="unknown HDR transfer"):
         hdr_to_srgb(np.zeros((1, 3)), "hdr10")
+
+
+@pytest.mark.parametrize("transfer", ["hlg", "pq"])
+def test_the_decodes_fast_hdr_mapping_is_the_formulas_within_a_level(transfer):
+    """hdr_to_srgb_u8 (tables, the decode's path) against hdr_to_srgb (the formulas) on random 16-bit codes and on
+    greys, darks and brights, each to the nearest 8-bit level or the next."""
+    codes = np.random.default_rng(0).integers(0, 65536, (50000, 3)).astype(np.uint16)
+    codes = np.concatenate([codes, np.repeat(np.linspace(0, 65535, 4097).astype(np.uint16)[:, None], 3, 1)])
+    reference = np.round(hdr_to_srgb(codes / 65535, transfer) * 255)
+    fast = hdr_to_srgb_u8(codes, transfer)
+    assert fast.dtype == np.uint8 and fast.shape == codes.shape
+    assert np.abs(fast - reference).max() <= 1 and np.mean(fast != reference) < 0.01

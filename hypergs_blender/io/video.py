@@ -6,7 +6,7 @@ Frames come as Blender's movie strips show them, so that a converted clip matche
   players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it); sizes are the upright ones too;
 - on the nominal rate's grid (`frame_grid`, `on_grid`): a phone's variable-rate video skips slots, where the frame
   before is held;
-- HDR (BT.2020 with HLG or PQ, `hdr_transfer`) as the sRGB picture of its light (colour.hdr_to_srgb), as Blender 5
+- HDR (BT.2020 with HLG or PQ, `hdr_transfer`) as the sRGB picture of its light (colour.hdr_to_srgb_u8), as Blender 5
   colour-manages it (4.2 shows the coded values)."""
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from typing import Iterator
 import numpy as np
 
 from .. import limits
-from ..colour import hdr_to_srgb
+from ..colour import hdr_to_srgb_u8
 from ..errors import VideoError
 
 
@@ -187,5 +187,4 @@ def rgb_of(frame, **resize) -> np.ndarray:
     transfer = hdr_transfer(frame)
     if transfer is None:
         return frame.to_ndarray(format="rgb24", **resize)
-    coded = frame.to_ndarray(format="rgb48le", **resize).astype(np.float32) / 65535
-    return np.round(hdr_to_srgb(coded, transfer) * 255).astype(np.uint8)
+    return hdr_to_srgb_u8(frame.to_ndarray(format="rgb48le", **resize), transfer)

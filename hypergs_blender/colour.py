@@ -45,22 +45,33 @@ BT2020_TO_BT709 = np.array([[1.6605, -0.5876, -0.0728],  # linear RGB, the prima
 BT2020_LUMA = np.array([0.2627, 0.6780, 0.0593], np.float32)
 
 
-def hdr_to_srgb(coded: np.ndarray, transfer: str) -> np.ndarray:
-    """HDR video's decoded RGB [..., 3] in [0, 1] (`transfer` "hlg" or "pq"; BT.2020 primaries) -> the sRGB-encoded
-    values in [0, 1] that Blender 5 shows of it: to light in nits (HLG through its 1000-nit OOTF), 100 nits to 1.0,
-    BT.2020 to BT.709 primaries, clipped, sRGB-encoded. Blender 4.2 shows the coded values as they are."""
+def hdr_light(coded, transfer: str) -> np.ndarray:
+    """HDR video's coded values in [0, 1] -> their light, float64: HLG's scene light E in [0, 1] (the inverse OETF),
+    PQ's in nits / 100 (the EOTF; 100 nits is 1.0)."""
     e = np.clip(np.asarray(coded, np.float64), 0, 1)  # float64: PQ's 1/78.8 power of float32 loses levels
     if transfer == "hlg":
-        scene = np.where(e <= 0.5, e * e / 3, (np.exp((e - HLG_C) / HLG_A) + HLG_B) / 12)
-        luma = np.maximum(scene @ BT2020_LUMA, 1e-12)[..., None]
-        nits = HLG_PEAK_NITS * luma ** (HLG_GAMMA - 1) * scene
-    elif transfer == "pq":
+        return np.where(e <= 0.5, e * e / 3, (np.exp((np.maximum(e, 0.5) - HLG_C) / HLG_A) + HLG_B) / 12)
+    if transfer == "pq":
         p = e ** (1 / PQ_M2)
-        nits = 10000 * (np.maximum(p - PQ_C1, 0) / (PQ_C2 - PQ_C3 * p)) ** (1 / PQ_M1)
-    else:
-        raise ValueError(f"unknown HDR transfer {transfer!r} (hlg or pq)")
-    linear = (nits / SDR_WHITE_NITS) @ BT2020_TO_BT709.T.astype(np.float64)
-    return linear_to_srgb(np.clip(linear, 0, 1))
+        return 10000 / SDR_WHITE_NITS * (np.maximum(p - PQ_C1, 0) / (PQ_C2 - PQ_C3 * p)) ** (1 / PQ_M1)
+    raise ValueError(f"unknown HDR transfer {transfer!r} (hlg or pq)")
+
+
+def display_linear(light: np.ndarray, transfer: str) -> np.ndarray:
+    """`hdr_light`'s [..., 3] -> linear sRGB, 1.0 at 100 nits: HLG through its OOTF for a 1000-nit display, then
+    BT.2020's primaries to BT.709's."""
+    if transfer == "hlg":
+        luma = np.maximum(light @ BT2020_LUMA, 1e-12)
+        light = light * (HLG_PEAK_NITS / SDR_WHITE_NITS * luma ** (HLG_GAMMA - 1))[..., None]
+    return light @ BT2020_TO_BT709.T
+
+
+def hdr_to_srgb(coded: np.ndarray, transfer: str) -> np.ndarray:
+    """HDR video's decoded RGB [..., 3] in [0, 1] (`transfer` "hlg" or "pq"; BT.2020 primaries) -> the sRGB-encoded
+    values in [0, 1] that Blender 5 shows of it: its light in nits, 100 nits to 1.0, BT.2020 to BT.709 primaries,
+    clipped, sRGB-encoded (Blender 4.2 shows the coded values as they are). The formulas: the reference of
+    `hdr_to_srgb_u8`."""
+    return linear_to_srgb(np.clip(display_linear(hdr_light(coded, transfer), transfer), 0, 1))
 
 
 OUTPUT_STEPS = 16383  # linear light in [0, 1] in this many steps before the sRGB table: under 0.25 of an 8-bit level
@@ -68,26 +79,14 @@ OUTPUT_STEPS = 16383  # linear light in [0, 1] in this many steps before the sRG
 
 @functools.lru_cache(maxsize=None)
 def _hdr_tables(transfer: str) -> tuple[np.ndarray, np.ndarray]:
-    """(each 16-bit code's light: HLG's scene light E, PQ's nits / 100; linear light's sRGB uint8 in OUTPUT_STEPS)."""
-    e = np.arange(65536, dtype=np.float64) / 65535
-    if transfer == "hlg":
-        light = np.where(e <= 0.5, e * e / 3, (np.exp((np.maximum(e, 0.5) - HLG_C) / HLG_A) + HLG_B) / 12)
-    elif transfer == "pq":
-        p = e ** (1 / PQ_M2)
-        light = 10000 / SDR_WHITE_NITS * (np.maximum(p - PQ_C1, 0) / (PQ_C2 - PQ_C3 * p)) ** (1 / PQ_M1)
-    else:
-        raise ValueError(f"unknown HDR transfer {transfer!r} (hlg or pq)")
-    srgb = np.round(linear_to_srgb(np.linspace(0, 1, OUTPUT_STEPS + 1)) * 255).astype(np.uint8)
-    return light.astype(np.float32), srgb
+    """(each 16-bit code's `hdr_light`, float32; linear light's sRGB uint8 in OUTPUT_STEPS)."""
+    light = hdr_light(np.arange(65536) / 65535, transfer).astype(np.float32)
+    return light, np.round(linear_to_srgb(np.linspace(0, 1, OUTPUT_STEPS + 1)) * 255).astype(np.uint8)
 
 
 def hdr_to_srgb_u8(coded: np.ndarray, transfer: str) -> np.ndarray:
     """`hdr_to_srgb` of 16-bit coded values (uint16 [..., 3]) as uint8, through tables of the transfer functions:
     the decode's fast path (a 1080p frame in a fraction of the formulas' time), within a level of them."""
     light, srgb = _hdr_tables(transfer)
-    rgb = light[coded]
-    if transfer == "hlg":  # the OOTF, 100 nits as 1.0
-        luma = np.maximum(rgb @ BT2020_LUMA, 1e-12)
-        rgb *= (HLG_PEAK_NITS / SDR_WHITE_NITS * luma ** (HLG_GAMMA - 1))[..., None]
-    linear = rgb @ BT2020_TO_BT709.T
+    linear = display_linear(light[coded], transfer)
     return srgb[np.clip(linear * OUTPUT_STEPS + 0.5, 0, OUTPUT_STEPS).astype(np.int32)]

@@ -127,7 +127,7 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
             rate, count = frame_grid(container, stream)
             decoded = container.decode(stream)
             position = 0
-            for index, frame in (on_grid(decoded, stream, rate, count) if count else enumerate(decoded)):
+            for index, frame in (on_grid(decoded, stream, rate, count, path) if count else enumerate(decoded)):
                 if wanted is not None:
                     if position >= len(wanted):
                         break
@@ -138,13 +138,11 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
                 yield index, to_canvas(frame, size)
         except av.error.FFmpegError as e:
             raise VideoError(f"{path}: cannot decode video ({e})") from e
-        except VideoError as e:
-            raise VideoError(f"{path}: {e}") from e
     if wanted is not None and position < len(wanted):
         raise VideoError(f"{path}: frame {wanted[position]} is past the end of the video")
 
 
-def on_grid(decoded, stream, rate: float, count: int):
+def on_grid(decoded, stream, rate: float, count: int, path):
     """(k, the frame shown k / rate seconds after the stream's start) for k < count, as Blender's movie strip
     picks it: the last frame whose timestamp is not later. A variable-rate video's frame is held where it skips a
     slot, and frames that come faster than the rate are passed over; a constant-rate video gives each frame once,
@@ -162,13 +160,13 @@ def on_grid(decoded, stream, rate: float, count: int):
             return
         last_end = ticks(shown, taken - 1) + max(shown.duration or 0, ticks_per_frame)
         if upcoming is None and due >= last_end + rate * ticks_per_frame:  # more missing than a rounding's second
-            raise VideoError(f"only {taken} of its {count} frames can be decoded: the file is cut off")
+            raise VideoError(f"{path}: only {taken} of its {count} frames can be decoded: the file is cut off")
         yield k, shown
 
 
 def to_canvas(frame, size: int | None) -> np.ndarray:
     """An av.VideoFrame as RGB uint8, upright; resized (short side = size, area filter) and centre-cropped. HDR
-    video is decoded at 16 bits and mapped to the sRGB picture Blender 5 shows of it (colour.hdr_to_srgb)."""
+    video is decoded at 16 bits and mapped to the sRGB picture Blender 5 shows of it (colour.hdr_to_srgb_u8)."""
     turns = quarter_turns(frame)
     if size is None:
         rgb = np.rot90(rgb_of(frame), turns)

@@ -267,6 +267,10 @@ class EncodeCost:
     cache_bytes_per_gaussian: float  # the frame cache (float16 .hgs, io/cache.py)
     threaded: bool = True  # whether more CPU threads make the forward pass faster (THREAD_GAIN each)
     decode_s_per_pixel: float = 4e-8  # decoding the source frame (PyAV) and handing it to the encoder
+    # HDR video's extra (VideoInfo.hdr: decoded at 16 bits and mapped through colour.hdr_to_srgb_u8's tables), one
+    # thread: 76 ms of CPU per 1080p frame, a 10-bit BT.2020 HLG H.264 against the same video untagged (12 frames,
+    # median of 5 whole-process runs each, session 34).
+    hdr_decode_s_per_pixel: float = 3.7e-8
     write_s_per_gaussian: float = 4.4e-7  # writing the frame cache
     # Refinement (torch, CPU, one thread; threads speed it up as they do the network: 1.45-1.65x on two), per
     # Gaussian and frame: step 1, the least-squares colours (refine.LS_ITERATIONS), and each further Adam step.
@@ -318,10 +322,11 @@ def adaptive_start_applies(encoder: str, layout: Layout, steps: int) -> bool:
             and layout.cell > layout.stride)
 
 
-def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1) -> Estimate:
+def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "network", threads: int = 1,
+             hdr: bool = False) -> Estimate:
     """What encoding `frames` frames on `layout` with `refine` refine steps will take with `encoder` (its
     name: "floor", "network-onnx", "transformer-onnx", ...) on `threads` CPU threads: time and size, from
-    ENCODE_COSTS."""
+    ENCODE_COSTS. hdr: the source is HDR video (VideoInfo.hdr), which costs more to decode."""
     cost = encode_cost(encoder)
     if cost is None:
         raise ValueError(f"no encoding cost for the encoder {encoder!r} (ENCODE_COSTS: {', '.join(ENCODE_COSTS)})")
@@ -340,7 +345,8 @@ def estimate(layout: Layout, frames: int, refine: int = 0, encoder: str = "netwo
     refine_s = 0.0
     if refine > 0:
         refine_s = n * (cost.refine_first_s_per_gaussian + cost.refine_s_per_gaussian_step * (refine - 1))
-    per_frame = (cost.decode_s_per_pixel * layout.width * layout.height + cost.write_s_per_gaussian * n
+    decode = cost.decode_s_per_pixel + (cost.hdr_decode_s_per_pixel if hdr else 0.0)
+    per_frame = (decode * layout.width * layout.height + cost.write_s_per_gaussian * n
                  + predict / speedup + refine_s / gain)
     return Estimate(per_frame * frames, threads, cost.cache_bytes_per_gaussian * n * frames,
                     cost.blend_bytes_per_gaussian * n)

@@ -116,7 +116,8 @@ def plan(sources: list[Source], chosen: EncodeSettings, runtime: Runtime) -> lis
         frames = max(0, stop - source.start)
         layout = chosen.layout(info.width, info.height, encoder)
         plans.append(Plan(source, info.width, info.height, layout, frames,
-                          estimate(layout, frames, chosen.refine, encoder.name, runtime.cpu_threads)))
+                          estimate(layout, frames, chosen.refine, encoder.name, runtime.cpu_threads,
+                                   hdr=info.hdr is not None)))
     return plans
 
 

@@ -198,6 +198,10 @@ def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
     floor = estimate(small, 10, refine=30, encoder="floor").seconds
     assert floor - estimate(small, 10, refine=30, encoder="floor", threads=2).seconds == pytest.approx(
         refining * (1 - 1 / (1 + THREAD_GAIN)))
+    # HDR video's decode costs more, per source pixel, whatever the encoder and threads.
+    for kwargs in (dict(), dict(encoder="floor", threads=2)):
+        assert estimate(small, 10, hdr=True, **kwargs).seconds - estimate(small, 10, **kwargs).seconds == pytest.approx(
+            cost.hdr_decode_s_per_pixel * small.width * small.height * 10)
     # The encoder's kind is its name's first part; one without a cost is refused by name.
     assert estimate(small, 10, encoder="network-torch") == estimate(small, 10, encoder="network-onnx") == a
     with pytest.raises(ValueError, match="'mystery-onnx'"):

@@ -104,6 +104,8 @@ def test_hdr_video_is_read_as_blender_5_shows_it(tmp_path, hdr):
     frames, _, _ = read_frames(path)
     np.testing.assert_allclose(frames[0], np.round(hdr_to_srgb(coded, hdr) * 255), atol=1)
     assert frames[0, 30, 32].mean() > 160  # mid-grey, brightened
+    assert probe(path).hdr == hdr  # what the dialogs' estimate counts the mapping's cost by
+    assert probe(write_video(tmp_path / "sdr.mp4", ramp)).hdr is None
 
 
 def test_iter_frames_streams_a_range(clip):

@@ -30,6 +30,7 @@ class VideoInfo:
     height: int
     fps: float
     num_frames: int
+    hdr: str | None = None  # "hlg" or "pq" (hdr_transfer): read as the sRGB picture of its light, at a cost
 
 
 # ffmpeg's codes of the HDR video Blender 5 colour-manages (movie_read.cc): BT.2020 primaries with a transfer
@@ -87,8 +88,9 @@ def frame_grid(container, stream) -> tuple[float, int]:
 
 
 def probe(path) -> VideoInfo:
-    """Upright size, frame rate and frame count on the grid of `frame_grid`. Decodes the first frame (which
-    carries the container's display rotation), and counts by decoding when the file does not say."""
+    """Upright size, frame rate, frame count on the grid of `frame_grid`, and HDR transfer. Decodes the first
+    frame (which carries the container's display rotation and colour tags), and counts by decoding when the file
+    does not say."""
     import av
 
     container, stream = _open(path)
@@ -109,7 +111,7 @@ def probe(path) -> VideoInfo:
     if quarter_turns(first) % 2:
         width, height = height, width
     limits.FRAMES.check(count, str(path))
-    return VideoInfo(str(path), width, height, fps, count)
+    return VideoInfo(str(path), width, height, fps, count, hdr_transfer(first))
 
 
 def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:

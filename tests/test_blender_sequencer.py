@@ -136,6 +136,16 @@ def test_a_phone_video_converts_as_its_strip_shows_it(session):
     assert r["psnr_source"] > r["psnr_next_frame"] + 1, r  # ...which is the 4th frame stored, not the 5th
 
 
+def test_tagged_photos_convert_as_their_image_strip_shows_them(session):
+    """Phone photos tagged "rotate 90" (EXIF orientation 6): Blender's image strip shows them as stored,
+    landscape, and so does the converted clip."""
+    r = step(session, "tagged_images")
+    assert r["strip_size"] == [256, 144], r  # this Blender ignores the tag
+    assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [256, 144, 100], r
+    assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the stored image 2...
+    assert r["psnr_source"] > r["psnr_reference"] - PSNR_MARGIN, r  # ...as good against the strip as the core's
+
+
 # ----------------------------------------------------------------------------------------------------
 # Blender side (run as a script: python test_blender_sequencer.py ZIP WORKDIR OUT.json)
 
@@ -337,6 +347,40 @@ def run_session(zip_path, work, out_path):
                     psnr_decoded_vs_movie=float(psnr(decoded, movie[4])),
                     psnr_source=float(psnr(image, movie[4])), psnr_next_frame=float(psnr(image, movie[5])),
                     psnr_reference=float(psnr(core, decoded)), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
+
+
+    @record("tagged_images")
+    def _():
+        import OpenImageIO as oiio
+        folder = work / "tagged"
+        folder.mkdir()
+        stored = [f for _, f in iter_frames(str(SAMPLE), range(0, 24, 8))]
+        for i, frame in enumerate(stored, 1):
+            path = str(folder / f"photo_{i:04d}.png")
+            spec = oiio.ImageSpec(256, 144, 3, oiio.UINT8)
+            spec.attribute("Orientation", 6)
+            out = oiio.ImageOutput.create(path)
+            out.open(path, spec)
+            out.write_image(frame)
+            out.close()
+        for s in compat.all_strips(editor):
+            s.mute = True
+        scene.render.resolution_x, scene.render.resolution_y = 256, 144
+        strip = strips.new_image(name="tagged", filepath=str(folder / "photo_0001.png"), channel=9, frame_start=90)
+        for i in range(2, len(stored) + 1):
+            strip.elements.append(f"photo_{i:04d}.png")
+        select("tagged")
+        shown = f12(91, "tagged_strip")  # what Blender shows of the second photo
+        result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
+        scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("tagged"))
+        r = scene_strip.scene.render
+        image = f12(91, "tagged_scene")
+        core = render_frames(encode_video(str(folder / "photo_0001.png"), encoder, EncodeSettings.choose("draft"),
+                                          start=1, stop=2), 256, 144, [0])[0]
+        return dict(result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
+                    clip_resolution=[r.resolution_x, r.resolution_y, r.resolution_percentage],
+                    psnr_source=float(psnr(image, shown)), psnr_reference=float(psnr(core, shown)),
+                    psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
 
     return results
 

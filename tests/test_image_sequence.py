@@ -7,7 +7,7 @@ import pytest
 from hypergs_blender.errors import HyperGSError, VideoError
 from hypergs_blender.colour import linear_to_srgb, srgb_to_linear
 from hypergs_blender.io.image_sequence import frame_path, is_image_sequence, iter_frames, list_frames, probe
-from hypergs_blender.io.images import read_image, write_image
+from hypergs_blender.io.images import image_size, read_image, write_image
 
 
 def frames_rgb(t=4, h=24, w=40, seed=0):
@@ -107,6 +107,32 @@ def test_alpha_and_grey_images(tmp_path):
     over_black = rgba[..., :3].astype(int) * rgba[..., 3:].astype(int) / 255
     assert np.abs(read_image(tmp_path / "rgba.png").astype(int) - over_black).max() <= 1
     assert np.array_equal(read_image(tmp_path / "grey.png"), np.repeat(grey, 3, axis=-1))
+
+
+@pytest.mark.parametrize("ext", ["png", "jpg", "tif"])
+def test_an_exif_orientation_is_ignored_as_blender_ignores_it(tmp_path, ext):
+    """A photo tagged "rotate 90" (EXIF orientation 6) reads as stored, landscape: Blender's image strips
+    show it so (the Sequencer test converts one), and a converted strip must show what the strip showed."""
+    import OpenImageIO as oiio
+
+    stored = np.zeros((24, 40, 3), np.uint8)
+    stored[:, :20] = 255  # the left half white: turned, the top half would be
+    for i in (1, 2):
+        path = str(tmp_path / f"phone.{i:04d}.{ext}")
+        spec = oiio.ImageSpec(40, 24, 3, oiio.UINT8)
+        spec.attribute("Orientation", 6)
+        out = oiio.ImageOutput.create(path)
+        out.open(path, spec)
+        out.write_image(stored)
+        out.close()
+    first = tmp_path / f"phone.0001.{ext}"
+    read = oiio.ImageInput.open(str(first))
+    assert read.spec().get_int_attribute("Orientation", 1) == 6  # the tag is in the file
+    read.close()
+    assert image_size(first) == (40, 24)
+    assert np.abs(read_image(first).astype(int) - stored).max() <= 2  # JPEG's rounding at the edge
+    info = probe(tmp_path / f"phone.####.{ext}", fps=24)
+    assert (info.width, info.height, info.num_frames) == (40, 24, 2)
 
 
 def test_write_image_formats(tmp_path):

@@ -33,6 +33,20 @@ def write_video(path, frames, fps=12, rotation=0, slots=None, hdr=None):
     return path
 
 
+def write_image_tagged(path, pixels, **attributes):
+    """uint8 pixels [H, W, C] written by OpenImageIO as they are, with these attributes in the file's
+    header (Orientation=6: a phone photo's "rotate 90"; oiio:UnassociatedAlpha=1: straight alpha)."""
+    import OpenImageIO as oiio
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], oiio.UINT8)
+    for name, value in attributes.items():
+        spec.attribute(name, value)
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), spec)
+    out.write_image(np.ascontiguousarray(pixels))
+    out.close()
+    return path
+
+
 @pytest.fixture
 def moving_video(tmp_path):
     """12 frames 64 x 48: a bright square moving right over a horizontal gradient."""

@@ -351,18 +351,12 @@ def run_session(zip_path, work, out_path):
 
     @record("tagged_images")
     def _():
-        import OpenImageIO as oiio
+        from conftest import write_image_tagged
         folder = work / "tagged"
         folder.mkdir()
         stored = [f for _, f in iter_frames(str(SAMPLE), range(0, 24, 8))]
         for i, frame in enumerate(stored, 1):
-            path = str(folder / f"photo_{i:04d}.png")
-            spec = oiio.ImageSpec(256, 144, 3, oiio.UINT8)
-            spec.attribute("Orientation", 6)
-            out = oiio.ImageOutput.create(path)
-            out.open(path, spec)
-            out.write_image(frame)
-            out.close()
+            write_image_tagged(folder / f"photo_{i:04d}.png", frame, Orientation=6)
         for s in compat.all_strips(editor):
             s.mute = True
         scene.render.resolution_x, scene.render.resolution_y = 256, 144

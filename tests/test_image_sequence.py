@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import write_image_tagged
 
 from hypergs_blender.errors import HyperGSError, VideoError
 from hypergs_blender.colour import linear_to_srgb, srgb_to_linear
@@ -92,17 +93,11 @@ def test_sequence_errors(tmp_path):
 
 
 def test_alpha_and_grey_images(tmp_path):
-    import OpenImageIO as oiio
-
     rgba = np.random.default_rng(1).integers(0, 256, (8, 6, 4), dtype=np.uint8)
     grey = rgba[..., :1].copy()
     for name, pixels in (("rgba.png", rgba), ("grey.png", grey)):
-        out = oiio.ImageOutput.create(str(tmp_path / name))
-        spec = oiio.ImageSpec(6, 8, pixels.shape[2], oiio.UINT8)
-        spec.attribute("oiio:UnassociatedAlpha", 1)  # store these values as they are (PNG alpha is straight)
-        out.open(str(tmp_path / name), spec)
-        out.write_image(pixels)
-        out.close()
+        # store these values as they are (PNG alpha is straight)
+        write_image_tagged(tmp_path / name, pixels, **{"oiio:UnassociatedAlpha": 1})
     # alpha dropped after premultiplying: the image composited over black
     over_black = rgba[..., :3].astype(int) * rgba[..., 3:].astype(int) / 255
     assert np.abs(read_image(tmp_path / "rgba.png").astype(int) - over_black).max() <= 1
@@ -118,13 +113,7 @@ def test_an_exif_orientation_is_ignored_as_blender_ignores_it(tmp_path, ext):
     stored = np.zeros((24, 40, 3), np.uint8)
     stored[:, :20] = 255  # the left half white: turned, the top half would be
     for i in (1, 2):
-        path = str(tmp_path / f"phone.{i:04d}.{ext}")
-        spec = oiio.ImageSpec(40, 24, 3, oiio.UINT8)
-        spec.attribute("Orientation", 6)
-        out = oiio.ImageOutput.create(path)
-        out.open(path, spec)
-        out.write_image(stored)
-        out.close()
+        write_image_tagged(tmp_path / f"phone.{i:04d}.{ext}", stored, Orientation=6)
     first = tmp_path / f"phone.0001.{ext}"
     read = oiio.ImageInput.open(str(first))
     assert read.spec().get_int_attribute("Orientation", 1) == 6  # the tag is in the file

@@ -348,7 +348,6 @@ def run_session(zip_path, work, out_path):
                     psnr_source=float(psnr(image, movie[4])), psnr_next_frame=float(psnr(image, movie[5])),
                     psnr_reference=float(psnr(core, decoded)), psnr_vs_core=float(psnr(image, np.clip(core, 0, 1))))
 
-
     @record("tagged_images")
     def _():
         from conftest import write_image_tagged

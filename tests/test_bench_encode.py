@@ -15,12 +15,13 @@ def test_bench_encode_rows_follow_the_layouts():
     for r in rows.values():
         assert r["s_per_frame"] > 0 and abs(r["frames_per_s"] * r["s_per_frame"] - 1) < 0.02
         assert r["cpu_s_per_frame"] > 0
-    assert "| 720p | draft | 14,400 | onnx |" in report["table"]
+    assert "| 720p | draft | 14,400 | network-onnx |" in report["table"]
 
 
 def test_bench_encode_command_writes_its_report(tmp_path, capsys):
     out = tmp_path / "encode.json"
     main(["bench", "encode", "--sizes", "256", "--gaussians", "64", "--backends", "torch", "--frames", "1",
-          "--repeats", "1", "--threads", "1", "-o", str(out)])
-    assert "| 256² | N = 64 | 64 | torch |" in capsys.readouterr().out
-    assert json.loads(out.read_text())["settings"]["threads"] == 1
+          "--repeats", "1", "--threads", "1", "--precision", "bfloat16", "-o", str(out)])
+    assert "| 256² | N = 64 | 64 | network-torch-bfloat16 |" in capsys.readouterr().out
+    settings = json.loads(out.read_text())["settings"]
+    assert (settings["threads"], settings["precision"]) == (1, "bfloat16")

@@ -161,6 +161,20 @@ def test_encode_command_errors_leave_no_file(tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob("clip.hgs*"))
 
 
+def test_encode_command_precision_reaches_the_torch_encoder(moving_video, tmp_path, capsys):
+    """--precision bfloat16 encodes with torch in bfloat16 (the clip says so); with onnxruntime it is one line of
+    error and no file."""
+    out = tmp_path / "clip.npz"
+    main(["encode", str(moving_video), "-o", str(out), "--gaussians", "48", "--backend", "torch", "--precision",
+          "bfloat16"])
+    assert load_clip(out).source["encoder"] == "network-torch-bfloat16"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["encode", str(moving_video), "-o", str(tmp_path / "onnx.npz"), "--backend", "onnx", "--precision",
+              "bfloat16"])
+    assert exit_info.value.code == 1 and "onnxruntime runs float32" in capsys.readouterr().err
+    assert not list(tmp_path.glob("onnx.npz*"))
+
+
 def test_estimate_scales_with_gaussians_frames_refine_steps_and_threads():
     from hypergs_blender.encode import ADAPTIVE_MIN_REFINE, ENCODE_COSTS, THREAD_GAIN, estimate, plan_layout
     from hypergs_blender.placement import SPLIT_FRACTION

@@ -8,6 +8,7 @@ import torch
 
 from hypergs_blender.training.optim import Lamb
 from hypergs_blender.encode import FloorEncoder
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.model import (ERROR_GAIN, PRESETS, ConvConfig, ConvGS, HyperGS, TransformerConfig, anchor_inputs, apply_rope,
                                    build_model, count_parameters, model_config, rope_angles)
 from hypergs_blender.network import torch_encoder
@@ -351,6 +352,26 @@ def test_onnx_matches_torch(tmp_path, stem_level, error_width):
     torch_.release()
     np.testing.assert_array_equal(onnx.predict(frames), a)
     assert not onnx.session.get_session_options().enable_mem_pattern
+
+
+def test_bfloat16_encoder_runs_in_bfloat16_and_stays_close():
+    """--precision bfloat16: the convolutions in bfloat16 (the Gaussians differ from float32's), the geometry in
+    float32 (means within a hundredth of a cell, not on bfloat16's lattice: 0.5 px at 128 px), named so; only
+    torch runs it, and an unknown precision is refused."""
+    from hypergs_blender.network import resolve_encoder
+    model = random_conv(ConvConfig(width=16, stem=8, blocks=(2,), stem_level="cell", error_width=8))
+    exact, fast = torch_encoder(model), torch_encoder(model, precision="bfloat16")
+    assert (exact.name, fast.name) == ("network-torch", "network-torch-bfloat16")
+    frames = np.random.default_rng(0).random((2, 128, 128, 3), dtype=np.float32)
+    a, b = exact.predict(frames), fast.predict(frames)
+    assert b.dtype == np.float32 and not np.array_equal(a, b)
+    cell = 2 * model.cfg.stride / 128  # canvas units
+    assert np.abs(a[..., :2] - b[..., :2]).max() < 0.01 * cell
+    np.testing.assert_allclose(b[..., 2:], a[..., 2:], atol=0.02, rtol=0.02)
+    with pytest.raises(HyperGSError, match="unknown precision 'half'"):
+        torch_encoder(model, precision="half")
+    with pytest.raises(HyperGSError, match="onnxruntime runs float32"):
+        resolve_encoder("network", "onnx", precision="bfloat16")
 
 
 def test_the_bundled_onnx_model_is_the_bundled_weights():

@@ -13,30 +13,31 @@ FRAME_SIZES = {"256": (256, 256), "720p": (1280, 720), "1080p": (1920, 1080)}
 
 def bench_encode(backends=("torch", "onnx"), counts=(250, 1000, 3000), presets=("draft", "standard", "high"),
                  sizes=tuple(FRAME_SIZES), frames: int = 8, large_frames: int = 2, repeats: int = 3, weights=None,
-                 threads: int = 0) -> dict:
+                 threads: int = 0, precision: str = "float32") -> dict:
     """Seconds per frame of each backend: `frames` frames per call at 256 x 256 for each count in
     `counts`, `large_frames` per call at 720p and 1080p for each Quality preset in `presets`; the
     fastest of `repeats` calls after one untimed call (on a shared machine the minimum is the figure
     that other jobs disturb least), in wall seconds and in this process's CPU seconds (which other jobs
     barely change; with one thread, the wall time of an idle core). threads: torch's and onnxruntime's CPU threads
-    (0: their defaults, one per core)."""
+    (0: their defaults, one per core); precision: the torch rows' (network.PRECISIONS; onnxruntime's are float32)."""
     import torch
 
     default_threads = torch.get_num_threads()
     torch.set_num_threads(threads or default_threads)
     try:
-        rows = _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats, weights, threads)
+        rows = _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats, weights, threads, precision)
     finally:
         torch.set_num_threads(default_threads)
     report = dict(bench="encode", machine=machine_report("cpu"),
                   settings=dict(threads=threads or default_threads, frames_per_call=frames,
-                                large_frames_per_call=large_frames, repeats=repeats, weights=str(weights or "bundled")),
+                                large_frames_per_call=large_frames, repeats=repeats, weights=str(weights or "bundled"),
+                                precision=precision),
                   rows=rows)
     report["table"] = format_encode_table(report)
     return report
 
 
-def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats, weights, threads) -> list[dict]:
+def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats, weights, threads, precision) -> list[dict]:
     import time
 
     import numpy as np
@@ -44,7 +45,8 @@ def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats
     rng = np.random.default_rng(0)
     rows = []
     for backend in backends:
-        encoder = resolve_encoder("network", backend, weights, device="cpu", threads=threads)
+        encoder = resolve_encoder("network", backend, weights, device="cpu", threads=threads,
+                                  precision=precision if backend == "torch" else "float32")
         for size in sizes:
             width, height = FRAME_SIZES[size]
             square = (width, height) == (256, 256)
@@ -60,7 +62,7 @@ def _encode_rows(backends, counts, presets, sizes, frames, large_frames, repeats
                     encode_frames(clip, encoder, layout)
                     cpu.append(time.process_time() - started)
                 seconds = timed(encode, repeats, warmup=True, statistic=min)[0] / len(clip)
-                rows.append(dict(backend=backend, size=f"{size}²" if square else size, width=width, height=height,
+                rows.append(dict(backend=backend, encoder=encoder.name, size=f"{size}²" if square else size, width=width, height=height,
                                  setting=f"N = {density['gaussians']}" if label == "N" else label,
                                  gaussians=layout.count, s_per_frame=significant(seconds),
                                  cpu_s_per_frame=significant(min(cpu[1:]) / len(clip)),
@@ -77,9 +79,9 @@ def format_encode_table(report: dict) -> str:
     m, s = report["machine"], report["settings"]
     lines = [f"{m.get('date', '?')[:10]}, {m.get('cpu', '?')} ({m.get('cores', '?')} cores, load "
              f"{m.get('load_average_1m', '?')}), {s['threads']} threads",
-             "", "| frames | setting | Gaussians | backend | s/frame | frames/s | CPU s/frame |",
+             "", "| frames | setting | Gaussians | encoder | s/frame | frames/s | CPU s/frame |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for r in report["rows"]:
-        lines.append(f"| {r['size']} | {r['setting']} | {r['gaussians']:,} | {r['backend']} | {r['s_per_frame']:.3f} | "
+        lines.append(f"| {r['size']} | {r['setting']} | {r['gaussians']:,} | {r.get('encoder', r['backend'])} | {r['s_per_frame']:.3f} | "
                      f"{r['frames_per_s']:.1f} | {r['cpu_s_per_frame']:.3f} |")
     return "\n".join(lines)

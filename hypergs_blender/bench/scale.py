@@ -147,7 +147,8 @@ def _scale_worker(spec: dict) -> dict:
     """Runs in its own process (so ru_maxrss is this job's peak): 'encode' or 'render'."""
     device = spec.get("device", "cpu")
     if spec["job"] == "encode_video":  # what `hypergs encode` runs: encode.encode_video, then save_clip
-        encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device)
+        encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device,
+                                  precision=spec.get("precision", "float32"))
         warm_up(encoder)
         reset = _reset_peak_rss()
         baseline = _rss_mb() or _peak_rss_mb()
@@ -166,7 +167,8 @@ def _scale_worker(spec: dict) -> dict:
                 "fps": video.num_frames / seconds, "peak_reset": reset, "rss_baseline_mb": round(baseline, 1),
                 "peak_rss_mb": round(_peak_rss_mb(), 1), "rss_trace": trace}
     if spec["job"] == "encode":
-        encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device)
+        encoder = resolve_encoder(spec["encoder"], spec.get("backend", "auto"), spec.get("weights"), device,
+                                  precision=spec.get("precision", "float32"))
         # warm-up on a tiny frame (numba / torch initialisation), then the baseline
         warm_up(encoder)
         if spec.get("refine"):
@@ -253,7 +255,7 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
                 render_width: int = 1920, render_height: int = 1080, render_frames: int | None = 48,
                 psnr_frames: int = 8, encoder: str = "network", backend: str = "auto", weights=None,
                 device: str = "auto", keep: str | None = None, also_encode_video: bool = False,
-                progress=None) -> dict:
+                precision: str = "float32", progress=None) -> dict:
     """A long video (`video`, or a synthetic `seconds` s W x H pan) encoded end to end at its native
     size into .hgs, streamed: frames/s and peak RSS after every chunk (bounded memory means the peak
     stops rising after the first chunks). Then `render_frames` frames (None: all) rendered at
@@ -278,7 +280,7 @@ def bench_scale(video=None, seconds: float = 60.0, width: int = 1280, height: in
             report["source"] = {"synthetic": False, "path": str(video), "frames": info.num_frames,
                                 "width": info.width, "height": info.height, "fps": info.fps}
         clip = folder / "scale.hgs"
-        common = {"encoder": encoder, "backend": backend, "weights": weights, "device": device}
+        common = {"encoder": encoder, "backend": backend, "weights": weights, "device": device, "precision": precision}
         say(progress, f"encoding {report['source']['frames']} frames ({density})")
         enc = run_scale_job({"job": "encode", "video": str(video), "output": str(clip), **density,
                              "chunk_frames": chunk_frames, "refine": refine, "bits": bits, **common})

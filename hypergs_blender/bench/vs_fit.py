@@ -127,7 +127,7 @@ def timed_encode(frames: np.ndarray, encoder, layout, device: str):
 def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFINE_STEPS, fit_iters=DEFAULT_FIT_ITERS,
                  sizes=DEFAULT_SIZES, frames: int = 4, start: int = 0, encoder="network", backend: str = "auto",
                  weights=None, device: str = "auto", fit_budget: float | None = None, fit_all: bool = False,
-                 fit_inits=FIT_INITS, threads: int = 1, progress=None) -> dict:
+                 fit_inits=FIT_INITS, threads: int = 1, precision: str = "float32", progress=None) -> dict:
     """Feedforward vs feedforward + refine vs fitting (from random, from the grid), on the same
     consecutive frames.
 
@@ -141,7 +141,7 @@ def bench_vs_fit(videos, gaussians=DEFAULT_GAUSSIANS, refine_steps=DEFAULT_REFIN
     the rasterizer as many (common.use_threads), so that every method runs on the same."""
     device = resolve_device(device)
     if isinstance(encoder, str):
-        encoder = resolve_encoder(encoder, backend, weights, device, threads=threads)
+        encoder = resolve_encoder(encoder, backend, weights, device, threads=threads, precision=precision)
     refine_steps, fit_iters = sorted(set(refine_steps)), sorted(set(fit_iters))
     report = {"bench": "vs-fit", "machine": machine_report(device),
               "settings": {"gaussians": list(gaussians), "refine_steps": refine_steps, "fit_iters": fit_iters,

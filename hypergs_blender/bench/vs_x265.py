@@ -44,7 +44,7 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
                   frames: int | None = 24, start: int = 0, refine_steps=(0,), encoder="network",
                   backend: str = "auto", weights=None, device: str = "auto",
                   codec: str = "libx265", preset: str = "medium", group_size: int = 16, decode_repeats: int = 3,
-                  position_bits: int | None = None, progress=None) -> dict:
+                  position_bits: int | None = None, precision: str = "float32", progress=None) -> dict:
     """Matched-quality pairs: Gaussians (N, refine K, .hgs bit depth) against an FFmpeg codec's CRFs on
     the same consecutive frames at the same size.
 
@@ -58,7 +58,7 @@ def bench_vs_x265(videos, gaussians=DEFAULT_GAUSSIANS, bits=DEFAULT_BITS, crfs=D
     ours, the CRF whose PSNR is closest, and x265's bpp and frames/s interpolated at our PSNR."""
     device = resolve_device(device)
     if isinstance(encoder, str):
-        encoder = resolve_encoder(encoder, backend, weights, device)
+        encoder = resolve_encoder(encoder, backend, weights, device, precision=precision)
     encoder_name = encoder.name
     notes = []
     if not video_codec_available(codec):

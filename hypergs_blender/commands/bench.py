@@ -13,7 +13,7 @@ from pathlib import Path
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
 from .. import limits
 from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES, FIT_INITS
-from ..network import BACKENDS, DEFAULT_NAMES, WEIGHTS_DIR
+from ..network import DEFAULT_NAMES, PRECISIONS, WEIGHTS_DIR
 from . import options
 
 
@@ -25,7 +25,7 @@ POSITION_BITS = options.Integer(0, high=16)  # 0: none
 def _bench_options(parser, default: str = "network") -> None:
     parser.add_argument("--encoder", default=default, choices=["network", "floor"],
                         help="the bundled network, or the grid floor (no learning)")
-    parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    options.add_backend_arguments(parser)
     options.add_model_arguments(parser)
     parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
     parser.add_argument("-o", "--output", default=None, type=options.OutputFile((".json",)),
@@ -53,6 +53,7 @@ def _encode(parser):
     parser.add_argument("--gaussians", nargs="+", type=options.gaussian_count, default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--presets", nargs="+", default=list(QUALITY), choices=list(QUALITY))
     parser.add_argument("--backends", nargs="+", default=["torch", "onnx"], choices=["torch", "onnx"])
+    parser.add_argument("--precision", default="float32", choices=PRECISIONS, help="the torch backend's arithmetic")
     parser.add_argument("--frames", type=options.frame_count, default=8, help="frames per call at 256²")
     parser.add_argument("--large-frames", type=options.frame_count, default=2, help="frames per call at 720p and 1080p")
     parser.add_argument("--repeats", type=options.positive_int, default=3)
@@ -66,7 +67,7 @@ def _encode(parser):
         from ..bench.encode import bench_encode
         return write_report(bench_encode(args.backends, args.gaussians, args.presets, args.sizes, args.frames,
                                          args.large_frames, args.repeats, options.weights_from_args(args),
-                                         args.threads), args.output)
+                                         args.threads, args.precision), args.output)
     return run
 
 
@@ -91,7 +92,7 @@ def _codec(parser):
         from ..bench.codec import bench_codec, format_codec_table
         from ..network import resolve_encoder
         encoder = resolve_encoder(args.encoder, args.backend, options.weights_from_args(args),
-                                  None if args.device == "auto" else args.device)
+                                  None if args.device == "auto" else args.device, precision=args.precision)
         report = bench_codec(args.videos, args.gaussians, args.bits, args.crf, args.size, args.frames, encoder,
                              args.codec, args.preset, args.group_size, args.position_bits or None, progress=_progress)
         report["table"] = format_codec_table(report)
@@ -130,7 +131,7 @@ def _vs_fit(parser):
                                    args.frames, args.start, args.encoder, args.backend, options.weights_from_args(args),
                                    args.device,
                                    args.fit_budget or None, args.fit_all, args.fit_inits, args.threads,
-                                   progress=_progress),
+                                   args.precision, progress=_progress),
                             args.output)
     return run
 
@@ -161,7 +162,8 @@ def _vs_x265(parser):
                                     args.start, args.refine_steps, args.encoder, args.backend,
                                     options.weights_from_args(args),
                                     args.device, args.codec, args.preset, args.group_size,
-                                    position_bits=args.position_bits or None, progress=_progress), args.output)
+                                    position_bits=args.position_bits or None, precision=args.precision,
+                                    progress=_progress), args.output)
     return run
 
 
@@ -193,7 +195,7 @@ def _scale(parser):
         return write_report(bench_scale(args.video, args.seconds, w, h, args.fps, args.gaussians, args.cell, args.chunk_frames,
                                   args.refine, args.bits, rw, rh, args.render_frames or None, 8, args.encoder,
                                   args.backend, options.weights_from_args(args), args.device, args.keep,
-                                  args.also_encode_video,
+                                  args.also_encode_video, args.precision,
                                   progress=_progress), args.output)
     return run
 
@@ -213,7 +215,7 @@ def _picture(parser):
         from ..network import resolve_encoder
         width, height = args.size
         encoder = resolve_encoder(args.encoder, args.backend, options.weights_from_args(args),
-                                  None if args.device == "auto" else args.device)
+                                  None if args.device == "auto" else args.device, precision=args.precision)
         report = bench_presets(args.video, width=width, height=height, frames=args.frames, encoder=encoder,
                                crop=args.crop)
         if args.picture:
@@ -262,7 +264,7 @@ def _designs(parser):
     parser.add_argument("--frames", type=options.Integer(2, limit=limits.FRAMES), default=8,
                         help="consecutive frames per video")
     parser.add_argument("--start", type=options.frame_index, default=0)
-    parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    options.add_backend_arguments(parser)
     parser.add_argument("--device", default="auto", type=options.text, help="auto (cuda when available), cpu, cuda")
     parser.add_argument("--threads", type=options.positive_int, default=1,
                         help="CPU threads of either backend and of the rasterizer (refine)")
@@ -278,9 +280,11 @@ def _designs(parser):
         from ..network import read_card, resolve_encoder, weights_name
         use_threads(args.threads)
         device = resolve_device(args.device)
-        conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads)
+        conv = resolve_encoder("network", args.backend, args.conv, device, threads=args.threads,
+                               precision=args.precision)
         weights = Path(args.transformer or WEIGHTS_DIR / f"{DEFAULT_NAMES['transformer']}.json")
-        transformer = resolve_encoder("network", args.backend, weights, device, threads=args.threads)
+        transformer = resolve_encoder("network", args.backend, weights, device, threads=args.threads,
+                                      precision=args.precision)
         folder, name = (weights.parent, weights.stem) if weights.suffix == ".json" else (weights, weights_name(weights))
         report = bench_designs(args.videos, conv, transformer, args.gaussians, args.grids, args.refine_steps,
                                args.size, args.frames, args.start, device, progress=_progress,

@@ -19,7 +19,7 @@ from .. import limits
 from ..encode import ADAPTIVE_MIN_REFINE, DEFAULT_QUALITY, QUALITY, EncodeSettings
 from ..errors import HyperGSError, one_line
 from ..io import files
-from ..network import BACKENDS, DEFAULT_NAMES, WEIGHTS_DIR, resolve_encoder
+from ..network import BACKENDS, DEFAULT_NAMES, PRECISIONS, WEIGHTS_DIR, resolve_encoder
 
 BIGGEST = 1 << 31  # no count or size of ours goes past this: int32 everywhere
 
@@ -380,8 +380,17 @@ def check_paths(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
 def add_encoder_arguments(parser) -> None:
     parser.add_argument("--encoder", default="network", choices=["network", "floor"],
                         help="the trained network, or the grid floor (no learning)")
-    parser.add_argument("--backend", default="auto", choices=BACKENDS)
+    add_backend_arguments(parser)
     add_model_arguments(parser)
+
+
+def add_backend_arguments(parser) -> None:
+    """What runs the network: torch or onnxruntime, and torch's arithmetic (network.PRECISIONS)."""
+    parser.add_argument("--backend", default="auto", choices=BACKENDS,
+                        help="torch where it and the .safetensors weights are there, else onnxruntime (auto)")
+    parser.add_argument("--precision", default="float32", choices=PRECISIONS,
+                        help="the torch backend's arithmetic: bfloat16 is 1.5-2x faster on a CPU with AMX (slower "
+                             "without) and up to 0.15 dB lower where the PSNR is highest")
 
 
 def add_model_arguments(parser) -> None:
@@ -437,4 +446,4 @@ def settings_from_args(args) -> EncodeSettings:
 
 
 def encoder_from_args(args, device=None):
-    return resolve_encoder(args.encoder, args.backend, weights_from_args(args), device)
+    return resolve_encoder(args.encoder, args.backend, weights_from_args(args), device, precision=args.precision)

@@ -43,8 +43,8 @@ BACKENDS = ("auto", "torch", "onnx")
 # the geometry and the error pass's render in float32 (model.full_precision). Measured (the model card's session
 # 38; a Xeon with AMX, one thread): the conv network 1.5-1.8x faster, -0.15 to +0.002 dB per clip, most lost
 # where the PSNR is highest (Aqua's 480^2 crops at 14,400 Gaussians: 52.92 -> 52.78); the transformer 2x faster,
-# -0.02 to -0.08 dB. Without AMX bfloat16 is emulated: 1.3-6x slower. So float32 unless asked for: the same
-# Gaussians on every CPU.
+# -0.02 to -0.08 dB. Without AMX it is slower at most sizes (1.2-5.7x; with AVX512-BF16 alone 1.35x faster at
+# N = 1,024, 1.2x slower at 3,025). So float32 unless asked for: the same Gaussians on every CPU.
 PRECISIONS = ("float32", "bfloat16")
 TILE = 1536  # working pixels per tile side, margins included (a 720p frame at any density: one pass)
 # The transformer's attention pairs (query x key tokens, all frames) per forward pass: onnxruntime holds

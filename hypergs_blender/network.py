@@ -289,10 +289,10 @@ def torch_encoder(model, device="cpu", card: dict | None = None, precision: str 
     model = model.to(device).eval()
     cfg = model.cfg
     suffix = "-bfloat16" if precision == "bfloat16" else ""
+    device_type = torch.device(device).type
 
     def run(*inputs: np.ndarray) -> np.ndarray:
-        with torch.inference_mode(), torch.autocast(torch.device(device).type, dtype=torch.bfloat16,
-                                                    enabled=precision == "bfloat16"):
+        with torch.inference_mode(), torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
             return model(*(torch.from_numpy(a).to(device) for a in inputs)).float().cpu().numpy()
 
     if cfg.arch == "transformer":

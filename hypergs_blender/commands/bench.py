@@ -13,7 +13,7 @@ from pathlib import Path
 from ..bench.common import DEFAULT_BITS, DEFAULT_CRFS, DEFAULT_GAUSSIANS, write_report
 from .. import limits
 from ..bench.vs_fit import DEFAULT_FIT_BUDGET, DEFAULT_FIT_ITERS, DEFAULT_REFINE_STEPS, DEFAULT_SIZES, FIT_INITS
-from ..network import DEFAULT_NAMES, PRECISIONS, WEIGHTS_DIR
+from ..network import DEFAULT_NAMES, WEIGHTS_DIR
 from . import options
 
 
@@ -53,7 +53,7 @@ def _encode(parser):
     parser.add_argument("--gaussians", nargs="+", type=options.gaussian_count, default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--presets", nargs="+", default=list(QUALITY), choices=list(QUALITY))
     parser.add_argument("--backends", nargs="+", default=["torch", "onnx"], choices=["torch", "onnx"])
-    parser.add_argument("--precision", default="float32", choices=PRECISIONS, help="the torch backend's arithmetic")
+    options.add_precision_argument(parser)  # of the torch rows; onnxruntime's run float32
     parser.add_argument("--frames", type=options.frame_count, default=8, help="frames per call at 256²")
     parser.add_argument("--large-frames", type=options.frame_count, default=2, help="frames per call at 720p and 1080p")
     parser.add_argument("--repeats", type=options.positive_int, default=3)

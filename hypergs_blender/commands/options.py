@@ -388,6 +388,10 @@ def add_backend_arguments(parser) -> None:
     """What runs the network: torch or onnxruntime, and torch's arithmetic (network.PRECISIONS)."""
     parser.add_argument("--backend", default="auto", choices=BACKENDS,
                         help="torch where it and the .safetensors weights are there, else onnxruntime (auto)")
+    add_precision_argument(parser)
+
+
+def add_precision_argument(parser) -> None:
     parser.add_argument("--precision", default="float32", choices=PRECISIONS,
                         help="the torch backend's arithmetic: bfloat16 is 1.5-2x faster on a CPU with AMX (slower "
                              "without) and up to 0.15 dB lower where the PSNR is highest")

@@ -27,6 +27,23 @@ def _subtitle(report: dict) -> str:
             f"encoder {s.get('encoder', '?')}")
 
 
+def _psnr_panel(ax, xlabel: str, title: str) -> None:
+    """A panel of PSNR against a cost on a log axis (time, bits), as vs-fit and vs-x265 draw them."""
+    ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("PSNR (dB)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best", framealpha=0.6)
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def plot_vs_fit(report: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
     summary = report["summary"]
@@ -58,16 +75,9 @@ def plot_vs_fit(report: dict, path: Path) -> None:
                     ax.annotate(f"K={r['k']}", (r["seconds"], r["psnr"]), fontsize=7, color=c,
                                 xytext=(3, 4), textcoords="offset points")
         res = ", ".join(groups[0]["resolution"]) if groups else ""
-        ax.set_title(f"frames {size} ({res})", fontsize=10)
-        ax.set_xscale("log")
-        ax.set_xlabel("encode seconds per frame (log)")
-        ax.set_ylabel("PSNR (dB)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="best", framealpha=0.6)
+        _psnr_panel(ax, "encode seconds per frame (log)", f"frames {size} ({res})")
     fig.suptitle(f"PSNR vs encode time: feedforward, + refine, per-frame fitting\n{_subtitle(report)}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_vs_x265(report: dict, path: Path) -> None:
@@ -89,16 +99,10 @@ def plot_vs_x265(report: dict, path: Path) -> None:
             for h in hg:
                 ax.annotate(f"{h['bits']}b", (h["bpp"], h["psnr"]), fontsize=7, color=c, xytext=(3, 3),
                             textcoords="offset points")
-        ax.set_xscale("log")
-        ax.set_xlabel("bits per pixel (log)")
-        ax.set_ylabel("PSNR (dB)")
-        ax.set_title(f"{Path(v['path']).stem}: {v['width']}x{v['height']}, {v['frames']} frames", fontsize=10)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="best", framealpha=0.6)
+        _psnr_panel(ax, "bits per pixel (log)",
+                    f"{Path(v['path']).stem}: {v['width']}x{v['height']}, {v['frames']} frames")
     fig.suptitle(f"PSNR vs bpp: .hgs at each bit depth vs {codec}\n{_subtitle(report)}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_scale(report: dict, path: Path) -> None:
@@ -117,9 +121,7 @@ def plot_scale(report: dict, path: Path) -> None:
     src = report["source"]
     ax.set_title(f"memory while encoding {e['frames']} frames of {src['width']}x{src['height']} "
                  f"({e['fps']:.3g} frames/s)\n{_subtitle(report)}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 PLOTTERS = {"vs-fit": plot_vs_fit, "vs-x265": plot_vs_x265, "scale": plot_scale}

@@ -71,11 +71,16 @@ def _encode(parser):
     return run
 
 
-def _codec(parser):
+def _rate_arguments(parser):
+    """The videos and the rates both codec benches sweep: .hgs bit depths at each Gaussian count, x265's CRFs."""
     parser.add_argument("videos", nargs="+", type=options.input_video)
     parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS))
     parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
     parser.add_argument("--crf", type=CRF, nargs="+", default=list(DEFAULT_CRFS))
+
+
+def _codec(parser):
+    _rate_arguments(parser)
     parser.add_argument("--size", type=options.image_side, default=256,
                         help="square frame size (short-side resize + centre crop)")
     parser.add_argument("--frames", type=options.frame_count, default=None,
@@ -137,10 +142,7 @@ def _vs_fit(parser):
 
 
 def _vs_x265(parser):
-    parser.add_argument("videos", nargs="+", type=options.input_video)
-    parser.add_argument("--gaussians", type=options.gaussian_count, nargs="+", default=list(DEFAULT_GAUSSIANS))
-    parser.add_argument("--bits", type=int, nargs="+", default=list(DEFAULT_BITS), choices=[4, 6, 8])
-    parser.add_argument("--crf", type=CRF, nargs="+", default=list(DEFAULT_CRFS))
+    _rate_arguments(parser)
     parser.add_argument("--refine-steps", type=options.non_negative_int, nargs="+", default=[0],
                         help="rows of ours at these refine K (0: the feedforward prediction)")
     parser.add_argument("--sizes", "--size", dest="size", default="256", type=options.frame_size,

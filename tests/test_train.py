@@ -1,5 +1,6 @@
 import argparse
 import json
+import os
 
 import numpy as np
 import pytest
@@ -540,6 +541,8 @@ def test_precision_runs_the_convolutions_in_bfloat16_where_asked_and_the_rest_in
     monkeypatch.setattr(train, "Evaluator", lambda *a, **k: (lambda model, device: {}))
     args = training_args(tmp_path / "run", 4, "conv")
     args.precision = "bfloat16"
+    # the run caps oneDNN's cache through the environment: set here so that it is undone after the test
+    monkeypatch.setenv("ONEDNN_PRIMITIVE_CACHE_CAPACITY", str(train.BFLOAT16_CPU_KERNEL_CACHE))
     train.run(args)
     checkpoint = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert checkpoint["step"] == 4 and json.loads(checkpoint["args"])["precision"] == "bfloat16"
@@ -547,3 +550,17 @@ def test_precision_runs_the_convolutions_in_bfloat16_where_asked_and_the_rest_in
     losses = [json.loads(line)["loss"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()
               if "loss" in line]
     assert len(losses) == 4 and all(np.isfinite(losses))
+
+
+def test_a_bfloat16_run_on_a_cpu_bounds_onednns_kernel_cache_unless_the_user_set_it(monkeypatch):
+    # oneDNN compiles a kernel per input shape; with the Gaussian count changing each step its cache grew by GBs
+    variable = "ONEDNN_PRIMITIVE_CACHE_CAPACITY"
+    monkeypatch.delenv(variable, raising=False)
+    for device, precision in (("cpu", "float32"), ("cpu", "auto"), ("cuda", "bfloat16")):
+        train.bound_kernel_cache(torch.device(device), precision)
+        assert variable not in os.environ, (device, precision)
+    train.bound_kernel_cache(torch.device("cpu"), "bfloat16")
+    assert os.environ[variable] == str(train.BFLOAT16_CPU_KERNEL_CACHE)
+    monkeypatch.setenv(variable, "256")
+    train.bound_kernel_cache(torch.device("cpu"), "bfloat16")
+    assert os.environ[variable] == "256"

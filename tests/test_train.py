@@ -555,7 +555,10 @@ def test_precision_runs_the_convolutions_in_bfloat16_where_asked_and_the_rest_in
 def test_a_bfloat16_run_on_a_cpu_bounds_onednns_kernel_cache_unless_the_user_set_it(monkeypatch):
     # oneDNN compiles a kernel per input shape; with the Gaussian count changing each step its cache grew by GBs
     variable = "ONEDNN_PRIMITIVE_CACHE_CAPACITY"
-    monkeypatch.delenv(variable, raising=False)
+    # set, then deleted: monkeypatch then restores the variable's state before the test (a delenv of an unset
+    # variable records nothing, and the value the helper sets would outlive the test)
+    monkeypatch.setenv(variable, "0")
+    monkeypatch.delenv(variable)
     for device, precision in (("cpu", "float32"), ("cpu", "auto"), ("cuda", "bfloat16")):
         train.bound_kernel_cache(torch.device(device), precision)
         assert variable not in os.environ, (device, precision)

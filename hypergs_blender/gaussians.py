@@ -226,11 +226,9 @@ def lattice_anchors(k: int, phase) -> np.ndarray:
     return out.reshape(-1, k * k, 2)
 
 
-def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
-    """Scales and rotations of the Gaussians stretched by T = diag(tx, ty): the covariance T Sigma T
-    re-factored as R diag(s^2) R^T, exactly. Means and colours are returned unchanged (means are in
-    [-1, 1] coordinates, which do not change when the canvas they refer to stretches)."""
-    cov = covariance(params[..., 2:4].astype(np.float64), params[..., 4].astype(np.float64), (tx, ty))
+def with_covariance(params: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """params with their scales and rotations replaced by the factors R diag(s^2) R^T of the covariances
+    cov [..., 2, 2] (exactly: s_x along the rotation, rotation in [0, 2 pi))."""
     a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     theta = 0.5 * np.arctan2(2 * b, a - d)
     c, s = np.cos(theta), np.sin(theta)
@@ -239,3 +237,11 @@ def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
     out[..., 3] = np.sqrt(np.maximum(a * s * s - 2 * b * s * c + d * c * c, 0))
     out[..., 4] = np.mod(theta, 2 * np.pi)
     return out
+
+
+def stretch_params(params: np.ndarray, tx: float, ty: float) -> np.ndarray:
+    """Scales and rotations of the Gaussians stretched by T = diag(tx, ty): the covariance T Sigma T
+    re-factored as R diag(s^2) R^T, exactly. Means and colours are returned unchanged (means are in
+    [-1, 1] coordinates, which do not change when the canvas they refer to stretches)."""
+    cov = covariance(params[..., 2:4].astype(np.float64), params[..., 4].astype(np.float64), (tx, ty))
+    return with_covariance(params, cov)

@@ -11,9 +11,10 @@ from hypergs_blender.commands.cli import main
 from hypergs_blender.encode import (EncodePlan, EncodeSettings, TileLayout, encode_video, frames_layout,
                                     plan_tile_layout)
 from hypergs_blender.errors import HyperGSError
-from hypergs_blender.gaussians import grid_anchors, lattice_anchors
+from hypergs_blender import network
+from hypergs_blender.gaussians import covariance, grid_anchors, lattice_anchors
 from hypergs_blender.model import PRESETS, HyperGS, TransformerConfig
-from hypergs_blender.network import (TransformerEncoder, onnx_encoder, resolve_encoder, torch_encoder,
+from hypergs_blender.network import (TransformerEncoder, onnx_encoder, resolve_encoder, tiles, torch_encoder,
                                      transformer_geometry)
 from hypergs_blender.training.export import card_of, export_onnx, save_weights
 from tiny_transformer import TINY
@@ -91,12 +92,67 @@ def test_windows_give_every_lattice_point_once(tiles, k, margin):
     np.testing.assert_allclose(out[0, :, 1].reshape(rows, cols), np.broadcast_to(ys[:, None], (rows, cols)), atol=1e-5)
     px = np.clip(((xs + 1) / 2 * w + 1e-3).astype(int), 0, w - 1)  # (off exact pixel borders, as the probe)
     py = np.clip(((ys + 1) / 2 * h + 1e-3).astype(int), 0, h - 1)
-    np.testing.assert_array_equal(out[:, :, 5:8].reshape(6, rows, cols, 3), frames[:, py][:, :, px])
+    # (the windows that share a point near a border see the same pixel under it: their blend is that pixel)
+    np.testing.assert_allclose(out[:, :, 5:8].reshape(6, rows, cols, 3), frames[:, py][:, :, px], atol=1e-6)
     # 6 frames are 2 clips of 4 (the second padded), every window of both in the forward passes
     windows = len(encoder.tile_borders(w, h)[0]) + 1, len(encoder.tile_borders(w, h)[1]) + 1
     assert sum(encoder.calls) == 2 * windows[0] * windows[1]
     if margin and tiles[0] > 1:
         assert windows[0] > tiles[0]  # overlapping windows, each core with context beyond it
+
+
+@pytest.mark.parametrize("band", [0.0, 12.0])
+def test_windows_cross_fade_across_their_borders(monkeypatch, band):
+    """Each window says where it starts (its colour and rotation follow its top-left pixel); a Gaussian
+    within band / 2 working pixels of a border between cores is the linear blend of the two windows'
+    (the owner's weight 1/2 + its distance into the core / band), means and colours averaged and the
+    covariance the weighted mean of theirs; elsewhere, and everywhere with band 0, its core's own."""
+    monkeypatch.setattr(network, "SEAM_BLEND", band)
+    c, k, margin, tiles_x, tiles_y = 32, 8, 8, 3, 2
+    w, h = tiles_x * c, tiles_y * c
+
+    def forward(frames, anchors, cell):
+        out = np.zeros((frames.shape[0], frames.shape[1], anchors.shape[1], 8), np.float32)
+        out[..., 0:2] = anchors[:, None]
+        corner = frames[:, :, 0, 0]  # [B, T, 3]: the window's start, x / w and y / h
+        out[..., 2], out[..., 3] = 2.0, 0.5
+        out[..., 4] = np.pi * (corner[..., 0] + 2 * corner[..., 1])[..., None]
+        out[..., 5:7] = corner[:, :, None, :2]
+        return out
+
+    ramp = np.zeros((2, h, w, 3), np.float32)
+    ramp[..., 0], ramp[..., 1] = np.arange(w) / w, (np.arange(h) / h)[:, None]
+    out = TransformerEncoder(forward, c, 2, 8, "probe", margin, (1, 64)).predict(ramp, (tiles_x * k, tiles_y * k))
+    out = out[0].reshape(tiles_y * k, tiles_x * k, 8)
+
+    def weights(size):  # [points, windows]: each window's share of each lattice point along an axis
+        points = (np.arange(size * k // c) + 0.5) * c / k
+        cores = [(c0, c1) for _, _, c0, c1 in tiles(size, margin, 1, c)]
+        share = np.stack([(points >= c0) & (points < c1) for c0, c1 in cores], 1).astype(float)
+        for i, (c0, c1) in enumerate(cores):
+            inside = (points >= c0) & (points < c1)
+            for border, into, neighbour in ((c0, points - c0, i - 1), (c1, c1 - points, i + 1)):
+                if not band or border in (0, size):  # the frame's own edge: no neighbour
+                    continue
+                near = inside & (np.abs(points - border) < band / 2)
+                share[near, i] = 0.5 + into[near] / band
+                share[near, neighbour] = 0.5 - into[near] / band
+        return share
+
+    starts_x, starts_y = ([s for s, _, _, _ in tiles(n, margin, 1, c)] for n in (w, h))
+    wx, wy = weights(w), weights(h)
+    assert ((wx > 0) & (wx < 1)).any() == (band > 0)  # the probe's frame has blended points
+    np.testing.assert_allclose(out[..., 5], np.broadcast_to(wx @ np.array(starts_x) / w, out.shape[:2]), atol=1e-5)
+    np.testing.assert_allclose(out[..., 6], np.broadcast_to((wy @ np.array(starts_y) / h)[:, None], out.shape[:2]),
+                               atol=1e-5)
+    rotation = np.pi * (np.array(starts_x)[None, :] / w + 2 * np.array(starts_y)[:, None] / h)  # [windows y, x]
+    windows_cov = covariance(np.array([2.0, 0.5]), rotation)
+    expected = np.einsum("ya,xb,abij->yxij", wy, wx, windows_cov)
+    blended = covariance(out[..., 2:4].astype(np.float64), out[..., 4].astype(np.float64))
+    np.testing.assert_allclose(blended, expected, atol=1e-5)
+    cols, rows = tiles_x * k, tiles_y * k  # the means stay on the lattice
+    np.testing.assert_allclose(out[..., 0], np.broadcast_to((np.arange(cols) + 0.5) / cols * 2 - 1, (rows, cols)),
+                               atol=1e-5)
 
 
 def test_last_clip_is_padded_with_its_last_frame():

@@ -185,6 +185,7 @@ class TransformerEncoder:
         share of each of its points, 1 in its core, falling linearly to 0 across each border it shares
         with a neighbour's core over `band` lattice points (0: its core's points alone)."""
         c, out = self.canvas, []
+        centre = np.arange(k) + 0.5  # a window's points, in lattice points from its start
 
         def first_at_or_after(x: int) -> int:  # the first point at or after working pixel x
             return -(-(2 * k * x - c) // (2 * c))
@@ -192,7 +193,6 @@ class TransformerEncoder:
         for start, _, c0, c1 in tiles(size, self.margin, 1, c):
             first = first_at_or_after(start)
             lo, hi = first_at_or_after(c0) - first, first_at_or_after(c1) - first
-            centre = np.arange(k) + 0.5  # the points, in lattice points from the window's start
             weight = np.ones(k)
             for inside, shared in ((centre - lo, c0 > 0), (hi - centre, c1 < size)):
                 if shared:  # inside: the signed distance into the core from that border
@@ -217,9 +217,12 @@ class TransformerEncoder:
         band = min(SEAM_BLEND, 2 * self.margin) * k / c  # in lattice points; no wider than the windows reach
         y_axis, x_axis = self._axis(h, k, band), self._axis(w, k, band)
         jobs = [(i, y, x) for i in range(clips) for y in y_axis for x in x_axis]
+        (share_y, seen_y), (share_x, seen_x) = self._shares(y_axis, k, rows), self._shares(x_axis, k, cols)
+        blended = (seen_y[:, None] * seen_x) > 1  # the points more than one window predicts
+        blending = bool(blended.any())  # none with one window, or a band of 0
         out = np.empty((clips, t, rows, cols, 8), np.float32)
         # sums of weight x (x, y, covariance xx, xy, yy, r, g, b) over the windows
-        moments = np.zeros((clips, t, rows, cols, 8), np.float32) if band else None
+        moments = np.zeros((clips, t, rows, cols, 8), np.float32) if blending else None
         per_call = max(1, BATCH_PAIRS // (t * ((c // self.patch) ** 2 + k * k) ** 2))
         cell = np.array([2.0 / k], np.float32)
         for n in range(0, len(jobs), per_call):
@@ -233,15 +236,13 @@ class TransformerEncoder:
                 p[..., 0] = ((p[..., 0] + 1) * (0.5 * c) + xa) * (2.0 / w) - 1
                 p[..., 1] = ((p[..., 1] + 1) * (0.5 * c) + ya) * (2.0 / h) - 1
                 out[i, :, fy + y0:fy + y1, fx + x0:fx + x1] = p[:, y0:y1, x0:x1]
-                if band:
+                if blending:
                     (ys, ye), (xs, xe) = (np.flatnonzero(weight)[[0, -1]] + [0, 1] for weight in (wy, wx))
                     q = p[:, ys:ye, xs:xe]
                     cov = covariance(q[..., 2:4], q[..., 4])
                     m = np.concatenate([q[..., :2], cov[..., 0, :], cov[..., 1, 1:], q[..., 5:]], -1)
                     moments[i, :, fy + ys:fy + ye, fx + xs:fx + xe] += (wy[ys:ye, None] * wx[xs:xe])[..., None] * m
-        if band:
-            (share_y, seen_y), (share_x, seen_x) = self._shares(y_axis, k, rows), self._shares(x_axis, k, cols)
-            blended = (seen_y[:, None] * seen_x) > 1  # the points more than one window predicts
+        if blending:
             m = moments[:, :, blended] / (share_y[:, None] * share_x)[blended][:, None]
             cov = np.stack([np.stack([m[..., 2], m[..., 3]], -1), np.stack([m[..., 3], m[..., 4]], -1)], -2)
             out[:, :, blended] = with_covariance(m, cov)  # m's slots 2-4 are the covariance's, replaced

@@ -273,13 +273,24 @@ def test_bench_designs_compares_at_equal_count_and_time(exported, moving_video):
     transformer = resolve_encoder(weights=exported, backend="onnx")
     report = bench_designs([moving_video], FloorEncoder(), transformer, gaussians=(16, 64), grids=(1, 2),
                            refine_steps=(1, 3), size=32, frames=4, device="cpu",
-                           training=dict(step=2, cpu_hours=0.01, train_args=dict(steps=10)))
+                           training=dict(step=2, cpu_hours=0.01, train_args=dict(steps=10, init_from=dict(
+                               path="w.safetensors", info=dict(step=1500, cpu_hours=1.25, train_args=dict(steps=1500))))))
     first = report["summary"][0]
     assert [e["n"] for e in report["summary"]] == [16, 64] and first["videos"] == 1
     assert first["conv"]["gaussians"] == 16 and first["transformer"]["1"]["gaussians"] == 16
     assert [r["k"] for r in first["refine"]] == [1, 3]
     assert "| transformer, grid 2x2 |" in report["table"] and "30.3 dB" in report["table"]
     assert "step 2 of the 10 its run planned, 0.01 CPU hours of training: undertrained" in report["table"]
+    assert "2 runs, 1,502 steps and 1.26 CPU hours in all" in report["table"]
+
+
+def test_bench_designs_names_the_chain_only_where_there_is_one():
+    from hypergs_blender.bench.designs import training_summary
+    single = training_summary(dict(step=5, cpu_hours=0.5, train_args=dict(steps=5)))
+    assert single["chain"] == dict(runs=1, steps=5, cpu_hours=0.5)
+    three = training_summary(dict(step=5, cpu_hours=0.5, train_args=dict(init_from=dict(info=dict(
+        step=7, cpu_hours=0.25, train_args=dict(init_from=dict(info=dict(step=11, cpu_hours=1.0))))))))
+    assert three["chain"] == dict(runs=3, steps=23, cpu_hours=1.75) and three["step"] == 5
 
 
 def test_train_then_export_a_transformer_run(tmp_path, monkeypatch, capsys):

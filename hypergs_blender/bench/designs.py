@@ -122,10 +122,24 @@ def _f(value, digits=2) -> str:
 
 
 def training_summary(info: dict | None) -> dict | None:
-    """step, planned steps and CPU hours of a model card's training info (None: unknown)."""
+    """step, planned steps and CPU hours of a model card's training info, and the totals over the chain of
+    runs its card records (each run's `init_from` holds the card of the weights it started from); None: unknown."""
     if not info or "step" not in info:
         return None
-    return dict(step=info["step"], planned=info.get("train_args", {}).get("steps"), cpu_hours=info.get("cpu_hours"))
+    links, steps, cpu_hours = 0, 0, 0.0
+    link = info
+    while link and "step" in link:
+        links, steps, cpu_hours = links + 1, steps + link["step"], cpu_hours + (link.get("cpu_hours") or 0.0)
+        link = (link.get("train_args", {}).get("init_from") or {}).get("info")
+    return dict(step=info["step"], planned=info.get("train_args", {}).get("steps"), cpu_hours=info.get("cpu_hours"),
+                chain=dict(runs=links, steps=steps, cpu_hours=round(cpu_hours, 2)))
+
+
+def _chain_text(chain: dict | None) -> str:
+    if not chain or chain["runs"] < 2:
+        return ""
+    return (f" That run started from earlier weights: {chain['runs']} runs, {chain['steps']:,} steps and "
+            f"{chain['cpu_hours']} CPU hours in all, as far as its card records them.")
 
 
 def format_designs_table(report: dict) -> str:
@@ -142,7 +156,8 @@ def format_designs_table(report: dict) -> str:
         short = planned and trained["step"] < planned
         lines += [f"**The transformer's weights: step {trained['step']}" + (f" of the {planned} its run planned" if planned else "")
                   + f", {trained['cpu_hours']} CPU hours of training" + (": undertrained, so its rows say what this "
-                  "checkpoint does, not what the design can do." if short else ".") + "**", ""]
+                  "checkpoint does, not what the design can do." if short else ".") + "**"
+                  + _chain_text(trained.get("chain")), ""]
     lines += ["| videos | N per frame | design | Gaussians | PSNR dB | SSIM | Δ-PSNR dB | s/frame | conv + refine at equal time |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for e in report["summary"]:

@@ -5,7 +5,7 @@ clips gained, against another such folder.
 
     python tools/eval_rows.py hypergs_blender/weights --out runs/eval/NAME            # the conv network's 14 rows (about 25 minutes)
     python tools/eval_rows.py RUN/export --out runs/eval/NAME --rows dev_n1000 dev_n3000
-    python tools/eval_rows.py RUN/export --design transformer --out runs/eval/NAME    # the transformer's 6 (about 10 minutes)
+    python tools/eval_rows.py RUN/export --design transformer --out runs/eval/NAME    # the transformer's 6 (about 8 minutes)
     python tools/eval_rows.py --compare docs/eval runs/eval/NAME                      # print the comparison only
 
 A row whose report is already in --out is kept (a run cut short resumes). Each `hypergs eval` runs on one torch
@@ -54,7 +54,8 @@ def run_row(name: str, weights: str, out: Path) -> str:
     report = out / f"{name}.json"
     if report.is_file() and report.stat().st_size:
         return f"{name}: kept"
-    args = ALL_ROWS[name] + ([] if "--backend" in ALL_ROWS[name] else ["--backend", "torch"])
+    row = ALL_ROWS[name]
+    args = row + ([] if "--backend" in row else ["--backend", "torch"])
     env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     done = subprocess.run([sys.executable, "-m", "hypergs_blender", "eval", *args, "--weights", weights, "--json"],
                           env=env, capture_output=True, text=True)
@@ -115,8 +116,8 @@ def main() -> None:
     if not (args.weights and args.out):
         parser.error("give a weights folder and --out (or --compare OLD NEW)")
     args.out.mkdir(parents=True, exist_ok=True)
+    rows = args.rows or list(DESIGN_ROWS[args.design])
     with ThreadPoolExecutor(args.lanes) as pool:
-        rows = args.rows or list(DESIGN_ROWS[args.design])
         for line in pool.map(lambda name: run_row(name, args.weights, args.out), rows):
             print(line, flush=True)
     compare(Path("docs/eval"), args.out)

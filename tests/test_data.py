@@ -225,6 +225,20 @@ def test_build_sources(photo_root, tmp_path):
         data.build_sources(f"procedural,videos={tmp_path / 'vids'}", root=tmp_path)
 
 
+def test_media_folders_missing_or_empty_name_the_option(tmp_path):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "notes.txt").write_text("not a video or an image")
+    for folder, what in ((tmp_path / "missing", "no such folder"), (tmp_path / "empty", "none of .mp4")):
+        with pytest.raises(DataError, match=f"^--videos {folder}: {what}"):
+            prepare.prepare_videos(folder, root=tmp_path / "root")
+    for folder, what in ((tmp_path / "missing", "no such folder"), (tmp_path / "empty", "none of .png")):
+        with pytest.raises(DataError, match=f"^--photo-folder {folder}: {what}"):
+            prepare.prepare_photos(root=tmp_path / "root", folder=folder)
+    with pytest.raises(DataError, match=f"^photos={tmp_path / 'empty'}: none of .png"):
+        photos.PhotoSource(tmp_path / "empty")
+    assert not (tmp_path / "root").exists()  # nothing written
+
+
 def test_collect_photos_dedupes_and_filters(tmp_path):
     rng = np.random.default_rng(5)
     image = smooth_texture(rng, 200, 300)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import IMAGE_EXTENSIONS, list_images, read_image
-from .sources import ClipSource, DataError, retry_blank
+from ..io.images import IMAGE_EXTENSIONS, read_image
+from .sources import ClipSource, DataError, media_files, retry_blank
 from .warp import pyramid, warp_pyramid
 
 PHOTOS_DIR = "photos"
@@ -65,9 +65,7 @@ class PhotoSource(ClipSource):
                  min_crop_fraction: float = 0.15):
         path = Path(path)
         if path.is_dir():
-            files = list_images(path)
-            if not files:
-                raise DataError(f"{path}: no images ({', '.join(IMAGE_EXTENSIONS)}) in this folder")
+            files = media_files(path, IMAGE_EXTENSIONS, f"photos={path}")
             images = [read_image(f, PHOTO_MAX_SHORT_SIDE) for f in files]
             names = [f.name for f in files]
         elif path.is_file():

@@ -21,8 +21,8 @@ from ..errors import VideoError
 from ..io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS, downscale, list_images, read_image, resize_exact
 from .photos import (PHOTO_CACHE, PHOTO_MAX_SHORT_SIDE, PHOTO_VAL_CACHE, PHOTOS_DIR, detail, load_photo_cache,
                      save_photo_cache)
-from .sources import DEFAULT_ROOT, DataError
-from .videos import CACHE_VERSION, list_videos, video_cache_dir
+from .sources import DEFAULT_ROOT, DataError, media_files
+from .videos import CACHE_VERSION, video_cache_dir
 
 WALLPAPER_PACKAGES = ("gnome-backgrounds", "mate-backgrounds", "ukui-wallpapers", "lomiri-wallpapers-16.04",
                       "lomiri-wallpapers-20.04", "plasma-workspace-wallpapers", "mypaint-data-extras")
@@ -177,11 +177,7 @@ def prepare_videos(folder, root=DEFAULT_ROOT, cache_size: int = 256, cache_frame
     position of the frame resized to short side cache_size) and index.json. Each clip has a random
     base stride (1-4 source frames) so that sampling strides reach further in time."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise DataError(f"--videos {folder}: no such folder")
-    files = list_videos(folder)
-    if not files:
-        raise DataError(f"--videos {folder}: no videos ({', '.join(VIDEO_EXTENSIONS)}) in this folder")
+    files = media_files(folder, VIDEO_EXTENSIONS, f"--videos {folder}")
     cache = video_cache_dir(folder, root)
     params = {"cache_size": cache_size, "cache_frames": cache_frames,
               "clips_per_video": clips_per_video, "seed": seed}
@@ -330,11 +326,7 @@ def prepare_photos(root=DEFAULT_ROOT, folder=None, force: bool = False, val_coun
         else:
             log(f"photos: using the images in {folder} (delete it to download them again)")
     folder = Path(folder)
-    if not folder.is_dir():
-        raise DataError(f"--photo-folder {folder}: no such folder")
-    files = list_images(folder)
-    if not files:
-        raise DataError(f"{folder}: no images ({', '.join(IMAGE_EXTENSIONS)})")
+    files = media_files(folder, IMAGE_EXTENSIONS, f"--photo-folder {folder}")
     manifest = {"folder": str(folder.resolve()), "files": _folder_manifest(files, folder),
                 "val_count": val_count, "max_short_side": PHOTO_MAX_SHORT_SIDE}
     if train_path.is_file() and val_path.is_file() and not force:

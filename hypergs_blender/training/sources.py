@@ -7,6 +7,8 @@ compiled with nogil=True, so a prefetch thread overlaps it with the training ste
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..errors import HyperGSError
@@ -18,6 +20,19 @@ BLANK_TRIES = 3
 
 class DataError(HyperGSError):
     """A bad source spec, or a missing folder or cache; the message says what to do."""
+
+
+def media_files(folder, extensions, named_by: str) -> list[Path]:
+    """The files anywhere under `folder` whose names end in one of `extensions` (any case), sorted.
+    A missing folder or one with none of them is a DataError that starts with `named_by`, the words
+    that named the folder (an option or a source spec)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{named_by}: no such folder")
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in extensions)
+    if not files:
+        raise DataError(f"{named_by}: none of {', '.join(extensions)} in this folder")
+    return files
 
 
 class ClipSource:

@@ -9,17 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import VIDEO_EXTENSIONS
 from .sources import DEFAULT_ROOT, ClipSource, DataError
 from .warp import warp_frame
 
 VIDEO_CACHE_DIR = "videos_cache"
 CACHE_VERSION = 1
-
-
-def list_videos(folder) -> list[Path]:
-    folder = Path(folder)
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS)
 
 
 def video_cache_dir(folder, root=DEFAULT_ROOT) -> Path:

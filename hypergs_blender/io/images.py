@@ -6,7 +6,7 @@ files (EXR, float TIFF) are scene-linear, encoded with the sRGB transfer curve a
 unless their colour space says sRGB. No other colour management (a log DPX stays log). Alpha is
 dropped after OpenImageIO's premultiplication (the image composited over black); grey is replicated
 to RGB. The pixels come as stored, an EXIF orientation tag ignored: Blender's images and image strips
-ignore it (measured on 4.2.23, 5.0.1 and 5.2.3: a file tagged "rotate 90" shows as stored), so a
+ignore it (measured on 4.2.23, 5.0.1, 5.2.3 and 5.3.0: a file tagged "rotate 90" shows as stored), so a
 converted strip shows what the strip showed. The size in the file's header is checked against the
 limits (limits.py) before any pixel is decoded.
 

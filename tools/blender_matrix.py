@@ -36,7 +36,8 @@ from blender_main_job import DEFAULT_ENCODER
 from build_extension import ROOT, build_zip
 
 # Blender series -> (bpy wheel version, the Python it needs)
-VERSIONS = {"4.2": ("4.2.23", "3.11"), "4.5": ("4.5.15", "3.11"), "5.0": ("5.0.1", "3.11"), "5.2": ("5.2.4", "3.13"), "5.3": ("5.3.0", "3.13")}
+VERSIONS = {"4.2": ("4.2.23", "3.11"), "4.5": ("4.5.15", "3.11"), "5.0": ("5.0.1", "3.11"),
+            "5.2": ("5.2.4", "3.13"), "5.3": ("5.3.0", "3.13")}
 MATRIX_DIR = ROOT / ".blender-matrix"
 OUT_DIR = ROOT / "runs" / "blender_matrix"
 MIN_PSNR = 24.0  # dB, the sample at Standard quality (1032 Gaussians): the network gives ~29.7, the floor ~25.9

@@ -29,9 +29,14 @@ IMAGE_EXTENSIONS = (".png", ".exr", ".dpx", ".tif", ".tiff", ".jpg", ".jpeg", ".
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
 
 
+def list_files(folder, extensions) -> list[Path]:
+    """Files anywhere under `folder` whose names end in one of `extensions` (any case), sorted."""
+    return sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.suffix.lower() in extensions)
+
+
 def list_images(folder) -> list[Path]:
     """Image files anywhere under `folder`, sorted."""
-    return sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+    return list_files(folder, IMAGE_EXTENSIONS)
 
 
 def _open(path):

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HyperGSError
+from ..io.images import list_files
 
 DEFAULT_ROOT = "data"
 BLANK_STD = 0.04  # a first frame this flat (std over pixels and channels) is drawn again
@@ -23,13 +24,12 @@ class DataError(HyperGSError):
 
 
 def media_files(folder, extensions, named_by: str) -> list[Path]:
-    """The files anywhere under `folder` whose names end in one of `extensions` (any case), sorted.
-    A missing folder or one with none of them is a DataError that starts with `named_by`, the words
-    that named the folder (an option or a source spec)."""
+    """`io.images.list_files(folder, extensions)`, where a missing folder or one with none of them is a
+    DataError that starts with `named_by`, the words that named the folder (an option or a source spec)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{named_by}: no such folder")
-    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in extensions)
+    files = list_files(folder, extensions)
     if not files:
         raise DataError(f"{named_by}: none of {', '.join(extensions)} in this folder")
     return files

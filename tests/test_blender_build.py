@@ -134,3 +134,15 @@ def test_command_line(tmp_path):
                              str(tmp_path), "--split-platforms"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     assert len(result.stdout.split()) == 3
+
+
+def test_matrix_installs_the_tests_imports_at_their_pins(tmp_path):
+    import blender_matrix
+    requirements = tmp_path / "requirements.txt"
+    requirements.write_text("# pins\nav==18.1.0  # video\npytest==9.2.0\nnumpy==1.26.4\n")
+    assert blender_matrix.pinned(["pytest", "av"], requirements) == ["pytest==9.2.0", "av==18.1.0"]
+    assert sorted(blender_matrix.pinned(blender_matrix.TEST_IMPORTS)) == sorted(
+        line for line in (ROOT / "requirements.txt").read_text().splitlines()
+        if line.split("==")[0] in blender_matrix.TEST_IMPORTS)
+    with pytest.raises(SystemExit, match="pins none of \\['torch'\\]"):
+        blender_matrix.pinned(["pytest", "torch"], requirements)

@@ -5,9 +5,11 @@ output with F12: the scene strip the conversion adds, rendered by HyperGS, again
 then a few frames converted with the HyperGS transformer (Model in the Convert dialog; the weights: a
 tiny untrained transformer exported here, tools/tiny_transformer.py, or --transformer WEIGHTS).
 
-    .venv/bin/python tools/blender_matrix.py [--versions 4.2,4.5,5.0,5.2,5.3] [--encoder bundled|floor]
+    .venv/bin/python tools/blender_matrix.py [--versions 4.2,4.5,5.0,5.2,5.3] [--encoder bundled|floor] [--tests]
 
-`.ci/run` runs it after the tests.
+`.ci/run` runs it after the tests. With --tests, each version also runs every Blender test
+(tests/test_blender_*.py, $HYPERGS_BLENDER_PYTHON set to its venv's Python, which gets the tests'
+own imports, pytest and av, at requirements.txt's pins); it then fails when any of them fails.
 
 The venvs live under .blender-matrix/ (gitignored): made once and reused (a venv is complete once its
 READY file names its bpy version), and pip's cache makes a re-made one quick. The Python each bpy
@@ -45,6 +47,8 @@ PSNR_MARGIN = 1.0  # dB the Sequencer's F12 may lose to the encoder's own measur
 LINKED_MARGIN = 2.0  # dB a clip linked to its .hgs file may lose to its frame cache (8-bit values: 0.3-1.5 dB at Standard)
 INSTALL_TIMEOUT = 1800
 SESSION_TIMEOUT = 900
+TESTS_TIMEOUT = 3600
+TEST_IMPORTS = ("pytest", "av")  # what the Blender side of tests/blender_session.py imports beyond bpy
 
 
 def find_python(version: str) -> str:
@@ -83,6 +87,38 @@ def ensure_venv(series: str, root: Path = MATRIX_DIR) -> tuple[Path, float]:
                    check=True, timeout=INSTALL_TIMEOUT)
     ready.write_text(bpy_version)
     return python, time.perf_counter() - started
+
+
+def pinned(names, requirements: Path = ROOT / "requirements.txt") -> list[str]:
+    """requirements.txt's pins ("pytest==9.2.0") of the packages `names`."""
+    pins = {}
+    for line in requirements.read_text().splitlines():
+        name, sep, version = line.split("#")[0].strip().partition("==")
+        if sep:
+            pins[name.lower()] = f"{name}=={version}"
+    missing = [n for n in names if n.lower() not in pins]
+    if missing:
+        raise SystemExit(f"{requirements} pins none of {missing}")
+    return [pins[n.lower()] for n in names]
+
+
+def run_blender_tests(python: Path, out: Path) -> dict:
+    """Every Blender test with its sessions in `python`'s Blender: {"rc", "summary", "seconds"}; pytest's
+    own output in out/tests.txt."""
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", *pinned(TEST_IMPORTS)],
+                   check=True, timeout=INSTALL_TIMEOUT)
+    log = out / "tests.txt"
+    started = time.perf_counter()
+    with open(log, "w") as f:
+        try:
+            rc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                                 *sorted(str(t.relative_to(ROOT)) for t in (ROOT / "tests").glob("test_blender_*.py"))],
+                                env=dict(os.environ, HYPERGS_BLENDER_PYTHON=str(python)), cwd=ROOT,
+                                stdout=f, stderr=subprocess.STDOUT, timeout=TESTS_TIMEOUT).returncode
+        except subprocess.TimeoutExpired:
+            rc = "timeout"
+    lines = [line for line in log.read_text().splitlines() if line.strip()]
+    return {"rc": rc, "summary": lines[-1] if lines else "", "seconds": time.perf_counter() - started}
 
 
 def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Path, transformer: Path) -> dict:
@@ -138,6 +174,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(OUT_DIR))
     parser.add_argument("--transformer", default=None,
                         help="transformer weights folder to convert with (default: a tiny untrained one made here)")
+    parser.add_argument("--tests", action="store_true",
+                        help="also run every Blender test (tests/test_blender_*.py) in each version")
     args = parser.parse_args(argv)
     series_list = [v.strip() for v in args.versions.split(",") if v.strip()]
     unknown = [v for v in series_list if v not in VERSIONS]
@@ -156,6 +194,11 @@ def main(argv=None) -> int:
         python, venv_s = ensure_venv(series, Path(args.venvs))
         report = run_series(series, python, zip_path, args.encoder, out / series, transformer)
         report["venv_s"] = venv_s
+        if args.tests:
+            report["tests"] = run_blender_tests(python, out / series)
+            if report["tests"]["rc"] != 0:  # pytest's 5 (nothing collected) fails too
+                report["failures"].append(f"Blender tests: {report['tests']['summary']} "
+                                          f"(see {out / series / 'tests.txt'})")
         summary[series] = report
         rows.append((series, report))
         status = "ok" if not report["failures"] else "FAILED: " + "; ".join(report["failures"])
@@ -164,7 +207,8 @@ def main(argv=None) -> int:
               f"convert {report.get('convert_s', float('nan')):5.1f} s  "
               f"F12 {max(report.get('render_s', [float('nan')])):5.2f} s  "
               f"PSNR {report.get('mean_psnr', float('nan')):5.2f} dB  "
-              f"transformer {report.get('transformer', {}).get('psnr', float('nan')):5.2f} dB  {status}", flush=True)
+              f"transformer {report.get('transformer', {}).get('psnr', float('nan')):5.2f} dB  "
+              + (f"tests: {report['tests']['summary']}  " if "tests" in report else "") + status, flush=True)
     summary["total_s"] = time.perf_counter() - started
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     failed = [series for series, report in rows if report["failures"]]

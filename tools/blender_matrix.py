@@ -89,6 +89,16 @@ def ensure_venv(series: str, root: Path = MATRIX_DIR) -> tuple[Path, float]:
     return python, time.perf_counter() - started
 
 
+def run_logged(command: list[str], log: Path, env: dict, timeout: float):
+    """Run `command` in the repository root with its output in `log`; its exit status, or "timeout"."""
+    with open(log, "w") as f:
+        try:
+            return subprocess.run(command, env=env, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT,
+                                  timeout=timeout).returncode
+        except subprocess.TimeoutExpired:
+            return "timeout"
+
+
 def pinned(names, requirements: Path = ROOT / "requirements.txt") -> list[str]:
     """requirements.txt's pins ("pytest==9.2.0") of the packages `names`."""
     pins = {}
@@ -109,14 +119,9 @@ def run_blender_tests(python: Path, out: Path) -> dict:
                    check=True, timeout=INSTALL_TIMEOUT)
     log = out / "tests.txt"
     started = time.perf_counter()
-    with open(log, "w") as f:
-        try:
-            rc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                                 *sorted(str(t.relative_to(ROOT)) for t in (ROOT / "tests").glob("test_blender_*.py"))],
-                                env=dict(os.environ, HYPERGS_BLENDER_PYTHON=str(python)), cwd=ROOT,
-                                stdout=f, stderr=subprocess.STDOUT, timeout=TESTS_TIMEOUT).returncode
-        except subprocess.TimeoutExpired:
-            rc = "timeout"
+    rc = run_logged([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                     *sorted(str(t.relative_to(ROOT)) for t in (ROOT / "tests").glob("test_blender_*.py"))],
+                    log, dict(os.environ, HYPERGS_BLENDER_PYTHON=str(python)), TESTS_TIMEOUT)
     lines = [line for line in log.read_text().splitlines() if line.strip()]
     return {"rc": rc, "summary": lines[-1] if lines else "", "seconds": time.perf_counter() - started}
 
@@ -128,15 +133,9 @@ def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Pat
     figures.unlink(missing_ok=True)
     env = dict(os.environ, PYTHONPATH=str(ROOT))  # the core, for the job's comparisons (numpy only)
     started = time.perf_counter()
-    with open(log, "w") as f:
-        try:
-            proc = subprocess.run([str(python), str(ROOT / "tools" / "blender_main_job.py"), "--zip", str(zip_path),
-                                   "--encoder", encoder, "--json", str(figures), "--out", str(out),
-                                   "--transformer", str(transformer)],
-                                  env=env, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, timeout=SESSION_TIMEOUT)
-            rc = proc.returncode
-        except subprocess.TimeoutExpired:
-            rc = "timeout"
+    rc = run_logged([str(python), str(ROOT / "tools" / "blender_main_job.py"), "--zip", str(zip_path),
+                     "--encoder", encoder, "--json", str(figures), "--out", str(out), "--transformer", str(transformer)],
+                    log, env, SESSION_TIMEOUT)
     report = json.loads(figures.read_text()) if figures.is_file() else {}
     report["session_s"] = time.perf_counter() - started
     failures = []

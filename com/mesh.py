@@ -53,8 +53,9 @@ SHOWN = "hypergs_frame"  # ID property of a clip's mesh: the clip frame it holds
 NOTHING = -1
 
 
-def _make_color_active(mesh) -> None:
-    try:  # make `color` the attribute that Mesh > Set Attribute and the colour display act on
+def make_color_active(mesh) -> None:
+    """Make `color` the attribute that Mesh > Set Attribute and the colour display act on (where the mesh has it)."""
+    try:
         mesh.attributes.active_color = mesh.attributes["color"]
         mesh.attributes.active = mesh.attributes["color"]
     except (AttributeError, TypeError, KeyError):
@@ -74,7 +75,7 @@ def write_frame(mesh, points: dict, frame: int) -> None:
         mesh.vertices.add(n)
         for name, (kind, _) in POINT_ATTRIBUTES.items():
             mesh.attributes.new(name, kind, "POINT")
-        _make_color_active(mesh)
+        make_color_active(mesh)
     if n:
         for name, key in (("position", "vector"), *((n, k) for n, (_, k) in POINT_ATTRIBUTES.items())):
             mesh.attributes[name].data.foreach_set(key, np.ascontiguousarray(points[name], np.float32).ravel())

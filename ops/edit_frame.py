@@ -4,6 +4,7 @@ mesh (an earlier version's) gets the other frames' points hidden."""
 import bpy
 
 from ..com import frames
+from ..com.mesh import make_color_active
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.points import clip_frame_index
 from .context import active_clip, report_error
@@ -38,12 +39,11 @@ class HYPERGS_OT_edit_frame(bpy.types.Operator):
                 frames.sync(obj, scene.frame_current + scene.frame_subframe)
             except HyperGSError as e:
                 return report_error(self, e)
-            bpy.ops.object.mode_set(mode="EDIT")
-            return {"FINISHED"}
-        if not show_only_frame(obj.data, clip_frame(obj, scene.frame_current)):
+        elif not show_only_frame(obj.data, clip_frame(obj, scene.frame_current)):
             self.report({"ERROR"}, f"'{obj.name}' has no `frame` attribute")
             return {"CANCELLED"}
         bpy.ops.object.mode_set(mode="EDIT")
+        make_color_active(obj.data)  # Blender 5.1 loses the active attribute on entering Edit Mode (5.0 and 5.2 keep it)
         return {"FINISHED"}
 
 

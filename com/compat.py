@@ -8,14 +8,21 @@ here and nowhere else, so the rest of the glue is written once:
   where the older `frame_final_*`, `frame_start` and `animation_offset_start` warn that they go in 6.0.
 - File-path properties that accept `//` (relative to the .blend): the PATH_SUPPORTS_BLEND_RELATIVE
   option exists since 4.5; without it Blender 4.2 still resolves `//` through bpy.path.abspath.
+- What a movie strip shows of a video (MOVIE_DISPLAY, by version: nothing in the API tells): the container's
+  display rotation since 4.4, HDR video colour-managed since 5.0 (before, its coded values as sRGB). Measured
+  with the bpy wheels on a rotated HLG video: 4.2.23 and 4.3.0 show it as stored, 4.4.0 and 4.5.15 upright with
+  mid-grey 128 as 128, 5.0.1 upright with 128 as 189 (its strip's colour space "Rec.2100-HLG").
 """
 from __future__ import annotations
 
 import bpy
 
+from ..hypergs_blender.io.video import Display
+
 _STRIP = getattr(bpy.types, "Strip", None) or bpy.types.Sequence  # renamed in 4.5
 _NEW_TIMING = "left_handle" in _STRIP.bl_rna.properties
 _PATH_RELATIVE = "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties
+MOVIE_DISPLAY = Display(rotation=bpy.app.version >= (4, 4, 0), hdr=bpy.app.version >= (5, 0, 0))
 
 
 def set_modifier_input(modifier, identifier: str, value) -> None:

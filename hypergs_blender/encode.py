@@ -34,7 +34,7 @@ import numpy as np
 from . import limits, metrics, optional
 from .errors import Cancelled, HyperGSError
 from .gaussians import COLOUR_GAIN, INITIAL_SIGMA, GaussianVideo, stretch_params
-from .io.frames import iter_frames, probe, sample_indices
+from .io.frames import SHOWN, Display, iter_frames, probe, sample_indices
 from .io.images import resize_exact
 from .placement import SPLIT_FRACTION, choose_start, pixel_errors, split_may_pay
 from .render import render_params
@@ -499,14 +499,14 @@ def psnr_frame_picks(total: int, count: int) -> list[int]:
 
 
 class EncodePlan:
-    """The encode of a video with `settings`, known before any frame is decoded (the frames to take,
-    the layout, the frame rate and the source description), then run chunk by chunk (`chunks`, or
-    `video` for the whole clip in memory)."""
+    """The encode of a video (its frames as `display` shows them) with `settings`, known before any frame is
+    decoded (the frames to take, the layout, the frame rate and the source description), then run chunk by chunk
+    (`chunks`, or `video` for the whole clip in memory)."""
 
     def __init__(self, path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
-                 stop: int | None = None, num_frames: int | None = None):
-        info = probe(path)
-        self.path, self.encoder, self.settings, self.size = path, encoder, settings, size
+                 stop: int | None = None, num_frames: int | None = None, display: Display = SHOWN):
+        info = probe(path, display)
+        self.path, self.encoder, self.settings, self.size, self.display = path, encoder, settings, size, display
         self.indices = sample_indices(info.num_frames, num_frames, start, stop)
         self.height, self.width = (size, size) if size else (info.height, info.width)
         self.layout = settings.layout(self.width, self.height, encoder)
@@ -555,7 +555,7 @@ class EncodePlan:
             return frames, params
 
         report()
-        for _, frame in iter_frames(self.path, self.indices, self.size):
+        for _, frame in iter_frames(self.path, self.indices, self.size, self.display):
             buffer.append(frame)
             if len(buffer) == chunk_frames:
                 yield encode(np.stack(buffer))
@@ -629,8 +629,8 @@ class EncodePlan:
 
 def encode_video(path, encoder, settings: EncodeSettings, size: int | None = None, start: int = 0,
                  stop: int | None = None, num_frames: int | None = None, progress: Progress | None = None,
-                 chunk_frames: int = 16) -> GaussianVideo:
-    """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly) into
-    one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
+                 chunk_frames: int = 16, display: Display = SHOWN) -> GaussianVideo:
+    """Encode frames [start, stop) of a video (every frame, or `num_frames` sampled uniformly; as `display` shows
+    them) into one GaussianVideo in memory. size: None keeps the native frame (the canvas is W x H); an int
     short-side-resizes and centre-crops to size x size first. See EncodePlan.chunks for the rest."""
-    return EncodePlan(path, encoder, settings, size, start, stop, num_frames).video(progress, chunk_frames)
+    return EncodePlan(path, encoder, settings, size, start, stop, num_frames, display).video(progress, chunk_frames)

@@ -19,7 +19,7 @@ from bpy.props import BoolProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..com import cache as clip_cache
-from ..com.compat import all_strips
+from ..com.compat import MOVIE_DISPLAY, all_strips
 from ..hypergs_blender.encode import Cancelled
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io import image_sequence
@@ -165,7 +165,8 @@ class HYPERGS_OT_import_video(EncodeOperator, EncodeOptions, bpy.types.Operator,
         path = check_video_path(self.filepath)
         if self.last_frame and self.last_frame < self.first_frame:
             raise HyperGSError(f"Last Frame {self.last_frame} comes before First Frame {self.first_frame}")
-        return Source(os.path.basename(path), path, self.first_frame - 1, self.last_frame or None)
+        return Source(os.path.basename(path), path, self.first_frame - 1, self.last_frame or None,
+                      display=MOVIE_DISPLAY)  # as this Blender shows the file in the Sequencer
 
     def what_to_encode(self, context):
         source = _with_scene_fps(self._source(), context.scene)

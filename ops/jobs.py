@@ -18,18 +18,21 @@ from ..hypergs_blender.encode import EncodePlan, EncodeSettings, psnr_sample_cou
 from ..hypergs_blender.io import cache
 from ..hypergs_blender.io.files import check_free_space, make_folders, remove_folders
 from ..hypergs_blender.io.hgs import HgsHeader
+from ..hypergs_blender.io.video import SHOWN, Display
 from ..hypergs_blender.runtime import Runtime, describe_encoder, make_encoder
 
 
 @dataclass(frozen=True)
 class Source:
-    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end); `fps`, when
-    given, is the clip's frame rate instead of the source's (image files have none: the scene's)."""
+    """Frames [start, stop) of a video or image sequence to encode (stop None: to its end), a video's frames as
+    `display` shows them (compat.MOVIE_DISPLAY: as this Blender's movie strips do); `fps`, when given, is the clip's
+    frame rate instead of the source's (image files have none: the scene's)."""
     name: str
     path: str
     start: int = 0
     stop: int | None = None
     fps: float | None = None
+    display: Display = SHOWN
 
 
 @dataclass
@@ -48,7 +51,7 @@ def run_encode(source: Source, settings: EncodeSettings, target: str, encoder, r
     frames the encode decoded. A folder with less room than the cache's estimate is refused before any frame is
     encoded. progress(done, total) -> False cancels (raises Cancelled; no file is left)."""
     started = time.perf_counter()
-    plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop)
+    plan = EncodePlan(source.path, encoder, settings, start=source.start, stop=source.stop, display=source.display)
     check_free_space(target, plan.cache_bytes, f"the frame cache of {len(plan.indices)} frames")
     with cache.writer(target, plan.width, plan.height, plan.layout.count, source.fps or plan.fps, plan.grid,
                       plan.source) as writer:

@@ -81,17 +81,18 @@ def copy_options(source, target) -> None:
 _probed: dict = {}
 
 
-def source_info(path: str):
-    """probe() of a video or image sequence, kept while the file is unchanged (dialogs redraw often)."""
+def source_info(source: Source):
+    """probe() of a source's video or image sequence, kept while the file is unchanged (dialogs redraw often)."""
+    path = source.path
     try:
         st = os.stat(path)
-        key = (path, st.st_size, st.st_mtime_ns)
+        key = (path, st.st_size, st.st_mtime_ns, source.display)
     except OSError:
-        key = (path, None, None)  # an image-sequence pattern: probe says what is wrong
+        key = (path, None, None, source.display)  # an image-sequence pattern: probe says what is wrong
     if key not in _probed:
         if len(_probed) > 64:
             _probed.clear()
-        _probed[key] = probe(path)
+        _probed[key] = probe(path, source.display)
     return _probed[key]
 
 
@@ -111,7 +112,7 @@ def plan(sources: list[Source], chosen: EncodeSettings, runtime: Runtime) -> lis
     encoder = make_encoder(runtime, chosen.model)  # loaded once; the encode uses it too
     plans = []
     for source in sources:
-        info = source_info(source.path)
+        info = source_info(source)
         stop = info.num_frames if source.stop is None else min(source.stop, info.num_frames)
         frames = max(0, stop - source.start)
         layout = chosen.layout(info.width, info.height, encoder)

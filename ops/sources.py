@@ -1,6 +1,7 @@
 """What an encode reads, from what the user picked: a video file or an image sequence (`check_video_path`),
 the selected Sequencer strips (`strips_to_convert`, `strip_source`: a strip's shown frames of its
-source) and a clip's own source (`reencode_source`), each as a jobs.Source; and the name a clip object
+source) and a clip's own source (`reencode_source`), each as a jobs.Source whose video frames are what this
+Blender's movie strips show (compat.MOVIE_DISPLAY); and the name a clip object
 takes from its source (`clip_name`)."""
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import re
 
 import bpy
 
-from ..com.compat import all_strips, strip_range, strip_source_first
+from ..com.compat import MOVIE_DISPLAY, all_strips, strip_range, strip_source_first
 from ..hypergs_blender.errors import HyperGSError
 from ..hypergs_blender.io import image_sequence
 from .jobs import Source
@@ -73,7 +74,7 @@ def strip_source(strip) -> Source:
         path, first = _image_strip_source(strip, library, first, count)
     else:
         path = check_video_path(bpy.path.abspath(strip.filepath, library=library))
-    return Source(strip.name, path, first, first + count)
+    return Source(strip.name, path, first, first + count, display=MOVIE_DISPLAY)
 
 
 def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, int]:
@@ -98,4 +99,5 @@ def _image_strip_source(strip, library, first: int, count: int) -> tuple[str, in
 def reencode_source(obj) -> Source:
     """The frames a clip was encoded from, at the clip's frame rate (what Re-encode encodes again)."""
     s = obj.hypergs
-    return Source(obj.name, check_video_path(s.source), s.source_start, s.source_start + s.num_frames, s.fps)
+    return Source(obj.name, check_video_path(s.source), s.source_start, s.source_start + s.num_frames, s.fps,
+                  MOVIE_DISPLAY)

@@ -146,3 +146,17 @@ def test_matrix_installs_the_tests_imports_at_their_pins(tmp_path):
         if line.split("==")[0] in blender_matrix.TEST_IMPORTS)
     with pytest.raises(SystemExit, match="pins none of \\['torch'\\]"):
         blender_matrix.pinned(["pytest", "torch"], requirements)
+
+
+def test_matrix_finds_the_modules_a_bpy_lacks(monkeypatch, tmp_path):
+    """This venv's bpy (5.0.1) bundles pxr and OpenImageIO; a module it lacks is named (the 4.2-4.4 wheels lack both,
+    and the matrix then installs them for the Blender tests), also where bpy prints a line of its own first (4.3)."""
+    import blender_matrix
+    assert blender_matrix.modules_bpy_lacks(Path(sys.executable)) == []
+    monkeypatch.setattr(blender_matrix, "MODULES", {"pxr": ("USD files", "usd-core"),
+                                                    "no_such_module_here": ("Nothing", "nothing")})
+    talkative = tmp_path / "python"
+    talkative.write_text(f'#!/bin/sh\necho "Unable to initialise audio"\nexec "{sys.executable}" "$@"\n')
+    talkative.chmod(0o755)
+    for python in (Path(sys.executable), talkative):
+        assert blender_matrix.modules_bpy_lacks(python) == ["no_such_module_here"]

@@ -122,14 +122,18 @@ def test_cutting_the_scene_strip_keeps_the_timing(session):
 
 
 def test_a_phone_video_converts_as_its_strip_shows_it(session):
-    """A phone's video: landscape frames with a display rotation, at a variable rate, in HLG. Blender 5's movie
-    strip shows it upright (4.2's ignores the rotation), on its nominal rate (a frame held where a slot is
-    skipped) and colour-managed (4.2 shows the coded values); the core reads those frames, and the converted
-    clip shows them in the strip's place."""
+    """A phone's video: landscape frames with a display rotation, at a variable rate, in HLG. The movie strip
+    shows it on its nominal rate (a frame held where a slot is skipped), upright from Blender 4.4 on (4.2's and
+    4.3's ignore the rotation) and colour-managed from 5.0 on (before, the coded values); the core reads the
+    frames as this Blender shows them (compat.MOVIE_DISPLAY), and the converted clip shows them in the strip's
+    place."""
     r = step(session, "phone")
-    assert r["strip_size"] == [144, 256] and r["strip_colorspace"] == "Rec.2100-HLG", r  # this Blender's reading
-    assert r["psnr_decoded_vs_movie"] > 35, r  # the core's frame 4 is what the strip shows there
-    assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [144, 256, 100], r
+    rotation, hdr = r["movie_display"]
+    shown = [144, 256] if rotation else [256, 144]
+    assert r["strip_size"] == shown, r  # this Blender's reading...
+    assert r["strip_colorspace"] == ("Rec.2100-HLG" if hdr else "sRGB"), r
+    assert r["psnr_decoded_vs_movie"] > 35, r  # ...is the core's: its frame 4 is what the strip shows there
+    assert r["result"] == ["FINISHED"] and r["clip_resolution"] == [*shown, 100], r
     assert r["clip_frames"] == r["strip_frames"] == [70, 77], r  # 7 slots of 1/24 s
     assert r["psnr_vs_core"] > 40, r  # the Sequencer's output is the core's render of the strip's frame 4...
     assert r["psnr_source"] > r["psnr_reference"] - PSNR_MARGIN, r
@@ -328,18 +332,20 @@ def run_session(zip_path, work, out_path):
         phone = write_video(work / "phone.mp4", stored, fps=24, rotation=90, slots=[0, 1, 2, 4, 5, 6], hdr="hlg")
         for s in compat.all_strips(editor):
             s.mute = True
-        scene.render.resolution_x, scene.render.resolution_y = 144, 256  # a portrait edit
+        width, height = (144, 256) if compat.MOVIE_DISPLAY.rotation else (256, 144)  # an edit of the video as shown
+        scene.render.resolution_x, scene.render.resolution_y = width, height
         strip = strips.new_movie(name="phone", filepath=str(phone), channel=8, frame_start=70)
         select("phone")
         movie = {k: f12(70 + k, f"phone_movie_{k}") for k in (4, 5)}  # what Blender shows of the file
-        decoded = dict(iter_frames(str(phone), [4]))[4] / np.float32(255)
+        decoded = dict(iter_frames(str(phone), [4], display=compat.MOVIE_DISPLAY))[4] / np.float32(255)
         result = bpy.ops.hypergs.convert_strip(quality="DRAFT")
         scene_strip = next(s for s in compat.all_strips(editor) if s.type == "SCENE" and s.scene.name.startswith("phone"))
         r = scene_strip.scene.render
         image = f12(74, "phone_scene")
-        core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=4, stop=5),
-                             144, 256, [0])[0]
-        return dict(result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
+        core = render_frames(encode_video(str(phone), encoder, EncodeSettings.choose("draft"), start=4, stop=5,
+                                          display=compat.MOVIE_DISPLAY), width, height, [0])[0]
+        return dict(blender=bpy.app.version_string, movie_display=[compat.MOVIE_DISPLAY.rotation, compat.MOVIE_DISPLAY.hdr],
+                    result=sorted(result), strip_size=[strip.elements[0].orig_width, strip.elements[0].orig_height],
                     strip_colorspace=strip.colorspace_settings.name,
                     strip_frames=[strip.frame_final_start, strip.frame_final_end],
                     clip_resolution=[r.resolution_x, r.resolution_y, r.resolution_percentage],

@@ -1,6 +1,8 @@
 """Image sequences through OpenImageIO: patterns, folders, formats, colour handling, writing."""
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 from conftest import write_image_tagged
@@ -197,3 +199,18 @@ def test_resize_with_a_kept_reformatter_is_a_fresh_one_at_every_size_filter_and_
         assert len(done) == 20 * len(jobs)
         for i, got in done:
             np.testing.assert_array_equal(got, expected[i])
+
+
+def test_a_python_without_openimageio_gets_a_clear_error_and_no_file(tmp_path, monkeypatch):
+    """The bpy 4.2 wheel's Python has no OpenImageIO: reading and writing images say what is missing."""
+    existing = tmp_path / "frame.0001.png"
+    write_image(existing, np.full((4, 6, 3), 128, np.uint8))
+    before = existing.read_bytes()
+    monkeypatch.setitem(sys.modules, "OpenImageIO", None)  # import OpenImageIO raises ModuleNotFoundError
+    message = r"Image files need the Python module 'OpenImageIO' \(PyPI package OpenImageIO\)"
+    for call in (lambda: read_image(existing), lambda: image_size(existing), lambda: probe(existing, fps=24),
+                 lambda: write_image(existing, np.zeros((4, 6, 3), np.uint8)),
+                 lambda: write_image(tmp_path / "new.png", np.zeros((4, 6, 3), np.uint8))):
+        with pytest.raises(HyperGSError, match=message):
+            call()
+    assert existing.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["frame.0001.png"]

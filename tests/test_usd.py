@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
 
+from hypergs_blender.errors import HyperGSError
 from hypergs_blender.gaussians import GaussianVideo
 from hypergs_blender.io.usd import PRIM_PATH, UsdError, export_usd, import_usd
 
@@ -155,3 +157,17 @@ def test_crate_files_are_read_in_a_child_and_its_errors_come_back(tmp_path, monk
     monkeypatch.delenv("HYPERGS_LIMIT_FRAMES")
     with pytest.raises(UsdError, match="no UsdGeomPoints prim at /Nothing"):
         import_usd(tmp_path / "c.usd", prim_path="/Nothing")
+
+
+def test_a_python_without_pxr_gets_a_clear_error_and_no_file(tmp_path, monkeypatch):
+    """The bpy 4.2 wheel's Python has no pxr: export and import say what is missing and where it comes from."""
+    video = make_video()
+    existing = tmp_path / "clip.usdc"
+    export_usd(video, existing)
+    before = existing.read_bytes()
+    monkeypatch.setitem(sys.modules, "pxr", None)  # import pxr raises ModuleNotFoundError
+    for call in (lambda: export_usd(video, existing), lambda: export_usd(video, tmp_path / "new.usda"),
+                 lambda: import_usd(existing)):
+        with pytest.raises(HyperGSError, match=r"USD files need the Python module 'pxr' \(PyPI package usd-core\)"):
+            call()
+    assert existing.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["clip.usdc"]

@@ -5,7 +5,7 @@ import pytest
 
 from hypergs_blender.errors import VideoError
 from conftest import write_video
-from hypergs_blender.io.frames import iter_frames, probe, read_frames, sample_indices
+from hypergs_blender.io.frames import Display, iter_frames, probe, read_frames, sample_indices
 from hypergs_blender.io.images import resize_crop
 
 
@@ -46,6 +46,13 @@ def test_a_video_with_a_display_rotation_comes_upright(tmp_path, rotation):
     square, _, _ = read_frames(path, size=24)
     assert square.shape == (3, 24, 24, 3)
     np.testing.assert_allclose(square, np.stack([resize_crop(f, 24) for f in upright]), atol=8)
+    # as Blender 4.2's movie strip shows it: as stored, sized as stored
+    as_stored = Display(rotation=False)
+    info = probe(path, as_stored)
+    assert (info.width, info.height) == (80, 48)
+    np.testing.assert_allclose(np.stack([f for _, f in iter_frames(path, display=as_stored)]), stored, atol=2)
+    square = np.stack([f for _, f in iter_frames(path, size=24, display=as_stored)])
+    np.testing.assert_allclose(square, np.stack([resize_crop(f, 24) for f in stored]), atol=8)
 
 
 def test_a_variable_rate_video_is_read_on_its_nominal_rate_as_blender_shows_it(tmp_path):
@@ -106,6 +113,11 @@ def test_hdr_video_is_read_as_blender_5_shows_it(tmp_path, hdr):
     assert frames[0, 30, 32].mean() > 160  # mid-grey, brightened
     assert probe(path).hdr == hdr  # what the dialogs' estimate counts the mapping's cost by
     assert probe(write_video(tmp_path / "sdr.mp4", ramp)).hdr is None
+    # as Blender 4.5's movie strip shows it: the coded values, at no extra cost
+    no_hdr = Display(hdr=False)
+    shown = np.stack([f for _, f in iter_frames(path, display=no_hdr)])
+    np.testing.assert_allclose(shown[0], np.round(coded * 255), atol=1)
+    assert probe(path, no_hdr).hdr is None
 
 
 def test_iter_frames_streams_a_range(clip):

@@ -5,9 +5,9 @@ output with F12: the scene strip the conversion adds, rendered by HyperGS, again
 then a few frames converted with the HyperGS transformer (Model in the Convert dialog; the weights: a
 tiny untrained transformer exported here, tools/tiny_transformer.py, or --transformer WEIGHTS).
 
-    .venv/bin/python tools/blender_matrix.py [--versions 4.2,4.5,5.0,5.2,5.3] [--encoder bundled|floor] [--tests]
+    .venv/bin/python tools/blender_matrix.py [--versions 4.2,4.3,4.4,4.5,5.0,5.1,5.2,5.3] [--encoder bundled|floor] [--tests]
 
-`.ci/run` runs it after the tests. With --tests, each version also runs every Blender test
+`.ci/run` runs it with --tests after the tests. With --tests, each version also runs every Blender test
 (tests/test_blender_*.py, $HYPERGS_BLENDER_PYTHON set to its venv's Python, which gets the tests'
 own imports, pytest and av, at requirements.txt's pins); it then fails when any of them fails.
 
@@ -37,9 +37,11 @@ from pathlib import Path
 from blender_main_job import DEFAULT_ENCODER
 from build_extension import ROOT, build_zip
 
+from hypergs_blender.optional import MODULES
+
 # Blender series -> (bpy wheel version, the Python it needs)
-VERSIONS = {"4.2": ("4.2.23", "3.11"), "4.5": ("4.5.15", "3.11"), "5.0": ("5.0.1", "3.11"),
-            "5.2": ("5.2.4", "3.13"), "5.3": ("5.3.0", "3.13")}
+VERSIONS = {"4.2": ("4.2.23", "3.11"), "4.3": ("4.3.0", "3.11"), "4.4": ("4.4.0", "3.11"), "4.5": ("4.5.15", "3.11"),
+            "5.0": ("5.0.1", "3.11"), "5.1": ("5.1.2", "3.13"), "5.2": ("5.2.4", "3.13"), "5.3": ("5.3.0", "3.13")}
 MATRIX_DIR = ROOT / ".blender-matrix"
 OUT_DIR = ROOT / "runs" / "blender_matrix"
 MIN_PSNR = 24.0  # dB, the sample at Standard quality (1032 Gaussians): the network gives ~29.7, the floor ~25.9
@@ -112,18 +114,31 @@ def pinned(names, requirements: Path = ROOT / "requirements.txt") -> list[str]:
     return [pins[n.lower()] for n in names]
 
 
+def modules_bpy_lacks(python: Path) -> list[str]:
+    """Which of the optional modules Blender's Python bundles (hypergs_blender.optional.MODULES: pxr, OpenImageIO)
+    `python`'s bpy does not bring: the bpy wheels bundle them from 4.5 on, 4.2-4.4's do not. The answer is the
+    last line printed, as bpy may print its own first (4.3: "Unable to initialise audio")."""
+    code = ("import importlib.util, json, sys, bpy; "
+            "print(json.dumps([m for m in sys.argv[1:] if importlib.util.find_spec(m) is None]))")
+    found = subprocess.run([str(python), "-c", code, *MODULES], capture_output=True, text=True, check=True,
+                           timeout=INSTALL_TIMEOUT)
+    return json.loads(found.stdout.splitlines()[-1])
+
+
 def run_blender_tests(python: Path, out: Path) -> dict:
     """Every Blender test with its sessions in `python`'s Blender: {"rc", "summary", "seconds"}; pytest's
-    own output in out/tests.txt."""
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", *pinned(TEST_IMPORTS)],
-                   check=True, timeout=INSTALL_TIMEOUT)
+    own output in out/tests.txt. A bpy that lacks the modules Blender bundles (modules_bpy_lacks) gets them from
+    PyPI at requirements.txt's pins, as the Blender it stands for has them; "added" names them."""
+    added = [MODULES[m][1] for m in modules_bpy_lacks(python)]
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check",
+                    *pinned([*TEST_IMPORTS, *added])], check=True, timeout=INSTALL_TIMEOUT)
     log = out / "tests.txt"
     started = time.perf_counter()
     rc = run_logged([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                      *sorted(str(t.relative_to(ROOT)) for t in (ROOT / "tests").glob("test_blender_*.py"))],
                     log, dict(os.environ, HYPERGS_BLENDER_PYTHON=str(python)), TESTS_TIMEOUT)
     lines = [line for line in log.read_text().splitlines() if line.strip()]
-    return {"rc": rc, "summary": lines[-1] if lines else "", "seconds": time.perf_counter() - started}
+    return {"rc": rc, "summary": lines[-1] if lines else "", "seconds": time.perf_counter() - started, "added": added}
 
 
 def run_series(series: str, python: Path, zip_path: Path, encoder: str, out: Path, transformer: Path) -> dict:
@@ -207,7 +222,9 @@ def main(argv=None) -> int:
               f"F12 {max(report.get('render_s', [float('nan')])):5.2f} s  "
               f"PSNR {report.get('mean_psnr', float('nan')):5.2f} dB  "
               f"transformer {report.get('transformer', {}).get('psnr', float('nan')):5.2f} dB  "
-              + (f"tests: {report['tests']['summary']}  " if "tests" in report else "") + status, flush=True)
+              + (f"tests: {report['tests']['summary']}  " if "tests" in report else "")
+              + (f"(with {', '.join(report['tests']['added'])} from PyPI)  " if report.get("tests", {}).get("added") else "")
+              + status, flush=True)
     summary["total_s"] = time.perf_counter() - started
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     failed = [series for series, report in rows if report["failures"]]

@@ -10,26 +10,28 @@ import numpy as np
 
 from ..errors import VideoError
 from . import image_sequence, video
-from .video import VideoInfo
+from .video import SHOWN, Display, VideoInfo
 
-__all__ = ["VideoInfo", "probe", "iter_frames", "read_frames", "sample_indices"]
+__all__ = ["Display", "SHOWN", "VideoInfo", "probe", "iter_frames", "read_frames", "sample_indices"]
 
 
-def probe(path) -> VideoInfo:
-    """Size, frame rate and frame count of a video or an image sequence."""
+def probe(path, display: Display = SHOWN) -> VideoInfo:
+    """Size, frame rate and frame count of a video (its frames as `display` shows them) or an image sequence."""
     if image_sequence.is_image_sequence(path):
         return image_sequence.probe(path)
-    return video.probe(path)
+    return video.probe(path, display)
 
 
-def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield (index, frame) with frame uint8 [H, W, 3] RGB, decoding one frame at a time.
+def iter_frames(path, indices=None, size: int | None = None,
+                display: Display = SHOWN) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield (index, frame) with frame uint8 [H, W, 3] RGB, decoding one frame at a time (a video's as `display`
+    shows it).
 
     indices: sorted frame indices to yield (None: every frame). size: short side resized to `size`
     and the frame centre-cropped to size x size (None: native size)."""
     if image_sequence.is_image_sequence(path):
         return image_sequence.iter_frames(path, indices, size)
-    return video.iter_frames(path, indices, size)
+    return video.iter_frames(path, indices, size, display)
 
 
 def sample_indices(num_available: int, num_frames: int | None, start: int = 0, stop: int | None = None) -> list[int]:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import limits
+from .. import limits, optional
 from ..colour import linear_to_srgb, srgb_to_linear
 from ..errors import HyperGSError, VideoError, one_line
 from .files import AtomicOutput
@@ -42,7 +42,7 @@ def list_images(folder) -> list[Path]:
 def _open(path):
     """(ImageInput, spec) of an image file whose size is within the limits; raises VideoError or
     LimitError naming the file."""
-    import OpenImageIO as oiio
+    oiio = optional.require("OpenImageIO")
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -71,7 +71,7 @@ def image_size(path) -> tuple[int, int]:
 def read_image(path, max_short_side: int | None = None) -> np.ndarray:
     """One image file -> uint8 [H, W, 3] RGB (see the module doc), area-downscaled so that its short
     side is at most `max_short_side` when given. Raises VideoError naming the file."""
-    import OpenImageIO as oiio
+    oiio = optional.require("OpenImageIO")
 
     inp, spec = _open(path)
     try:
@@ -120,7 +120,7 @@ def write_image(path, rgb: np.ndarray) -> None:
     render). The suffix picks the format:
       .exr        half float, converted to scene-linear (extended sRGB decoding: values past [0, 1] kept)
       .tif/.tiff  16-bit, .dpx 10-bit, others (.png, .jpg...) 8-bit: clipped to [0, 1], sRGB-encoded."""
-    import OpenImageIO as oiio
+    oiio = optional.require("OpenImageIO")
 
     path = Path(path)
     rgb = np.asarray(rgb)

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import limits
+from .. import limits, optional
 from ..errors import HyperGSError, LimitError, reason
 from ..gaussians import NUM_PARAMS, GaussianVideo
 from .files import AtomicOutput, StreamingWriter
@@ -73,6 +73,7 @@ class UsdWriter(StreamingWriter):
 
     def __init__(self, path, canvas_width: int, canvas_height: int, num_gaussians: int, fps: float = 24.0,
                  grid=(1, 1), source: dict | None = None, start_frame: int = 1, prim_path: str = PRIM_PATH):
+        optional.require("pxr")
         from pxr import Sdf, Usd, UsdGeom, Vt
 
         self.path = Path(path)
@@ -213,6 +214,7 @@ def import_usd(path, prim_path: str | None = None) -> GaussianVideo:
     if not path.is_file():
         raise UsdError(f"{path}: no such file")
     limits.BYTES.check(path.stat().st_size, str(path))
+    optional.require("pxr")  # here, not in the child, which would only name the missing module
     if path.suffix.lower() == ".usdc" or _starts_like_a_crate(path):
         return _read_in_child(path, prim_path)
     return _read_usd(path, prim_path)

@@ -1,13 +1,14 @@
 """Video files with PyAV: probing and streamed decoding, with the short-side resize + centre crop
 done while converting each frame to RGB. `frames.py` dispatches between this and image sequences.
 
-Frames come as Blender's movie strips show them, so that a converted clip matches its strip frame for frame:
+Frames come as a viewer shows them (`Display`), so that a converted clip matches its strip frame for frame:
 - upright: a phone's portrait video is stored as landscape frames with a display rotation in its container, which
-  players, ffmpeg and Blender 5's Sequencer apply (Blender 4.2's ignores it); sizes are the upright ones too;
+  players, ffmpeg and Blender's Sequencer from 4.4 on apply (4.2's and 4.3's ignore it); sizes are the shown ones too;
 - on the nominal rate's grid (`frame_grid`, `on_grid`): a phone's variable-rate video skips slots, where the frame
   before is held;
 - HDR (BT.2020 with HLG or PQ, `hdr_transfer`) as the sRGB picture of its light (colour.hdr_to_srgb_u8), as Blender 5
-  colour-manages it (4.2 shows the coded values)."""
+  colour-manages it (4.2 to 4.5 show the coded values).
+What the Blender running the extension shows is com/compat.py's MOVIE_DISPLAY."""
 from __future__ import annotations
 
 import math
@@ -23,14 +24,26 @@ from ..errors import VideoError
 
 
 @dataclass(frozen=True)
+class Display:
+    """What a viewer does to a video's coded frames before showing them: turn them by the container's display
+    rotation, and colour-manage HDR video (the sRGB picture of its light). Players, ffmpeg and Blender 5's
+    Sequencer do both (the default); what older Blenders do is com/compat.py's MOVIE_DISPLAY."""
+    rotation: bool = True
+    hdr: bool = True
+
+
+SHOWN = Display()  # as players show a video
+
+
+@dataclass(frozen=True)
 class VideoInfo:
-    """What `probe` tells of a video or an image sequence: the size of its frames upright."""
+    """What `probe` tells of a video or an image sequence: the size of its frames as shown (Display)."""
     path: str
     width: int
     height: int
     fps: float
     num_frames: int
-    hdr: str | None = None  # "hlg" or "pq" (hdr_transfer): read as the sRGB picture of its light, at a cost
+    hdr: str | None = None  # "hlg" or "pq" (hdr_transfer) where read as the sRGB picture of its light, at a cost
 
 
 # ffmpeg's codes of the HDR video Blender 5 colour-manages (movie_read.cc): BT.2020 primaries with a transfer
@@ -43,9 +56,10 @@ def hdr_transfer(frame) -> str | None:
     return HDR_TRANSFERS.get(int(frame.color_trc)) if int(frame.color_primaries) == BT2020_PRIMARIES else None
 
 
-def quarter_turns(frame) -> int:
-    """Counter-clockwise quarter turns that make a decoded frame upright (its display rotation, 0-3)."""
-    return round(frame.rotation / 90) % 4
+def quarter_turns(frame, display: Display = SHOWN) -> int:
+    """Counter-clockwise quarter turns that make a decoded frame as `display` shows it (its display rotation,
+    0-3, or 0 where the rotation is not applied)."""
+    return round(frame.rotation / 90) % 4 if display.rotation else 0
 
 
 def _open(path):
@@ -87,10 +101,10 @@ def frame_grid(container, stream) -> tuple[float, int]:
     return rate, math.floor(seconds * rate + 0.5)
 
 
-def probe(path) -> VideoInfo:
-    """Upright size, frame rate, frame count on the grid of `frame_grid`, and HDR transfer. Decodes the first
-    frame (which carries the container's display rotation and colour tags), and counts by decoding when the file
-    does not say."""
+def probe(path, display: Display = SHOWN) -> VideoInfo:
+    """Size as `display` shows the frames, frame rate, frame count on the grid of `frame_grid`, and the HDR transfer
+    `display` colour-manages. Decodes the first frame (which carries the container's display rotation and colour
+    tags), and counts by decoding when the file does not say."""
     import av
 
     container, stream = _open(path)
@@ -108,14 +122,15 @@ def probe(path) -> VideoInfo:
             raise VideoError(f"{path}: cannot decode video ({e})") from e
     if first is None or count <= 0 or width <= 0 or height <= 0:
         raise VideoError(f"{path}: video has no decodable frames")
-    if quarter_turns(first) % 2:
+    if quarter_turns(first, display) % 2:
         width, height = height, width
     limits.FRAMES.check(count, str(path))
-    return VideoInfo(str(path), width, height, fps, count, hdr_transfer(first))
+    return VideoInfo(str(path), width, height, fps, count, hdr_transfer(first) if display.hdr else None)
 
 
-def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield (index, frame) with frame uint8 [H, W, 3] RGB, decoding one frame at a time.
+def iter_frames(path, indices=None, size: int | None = None,
+                display: Display = SHOWN) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield (index, frame) with frame uint8 [H, W, 3] RGB as `display` shows it, decoding one frame at a time.
 
     indices: sorted frame indices to yield (None: every frame). size: short side resized to `size`
     and the frame centre-cropped to size x size (None: native size).
@@ -137,7 +152,7 @@ def iter_frames(path, indices=None, size: int | None = None) -> Iterator[tuple[i
                         continue
                     position += 1
                 limits.check_image_size(frame.width, frame.height, f"{path}: frame {index}")
-                yield index, to_canvas(frame, size)
+                yield index, to_canvas(frame, size, display)
         except av.error.FFmpegError as e:
             raise VideoError(f"{path}: cannot decode video ({e})") from e
     if wanted is not None and position < len(wanted):
@@ -166,25 +181,27 @@ def on_grid(decoded, stream, rate: float, count: int, path):
         yield k, shown
 
 
-def to_canvas(frame, size: int | None) -> np.ndarray:
-    """An av.VideoFrame as RGB uint8, upright; resized (short side = size, area filter) and centre-cropped. HDR
-    video is decoded at 16 bits and mapped to the sRGB picture Blender 5 shows of it (colour.hdr_to_srgb_u8)."""
-    turns = quarter_turns(frame)
+def to_canvas(frame, size: int | None, display: Display = SHOWN) -> np.ndarray:
+    """An av.VideoFrame as RGB uint8 as `display` shows it; resized (short side = size, area filter) and
+    centre-cropped. Colour-managed HDR video is decoded at 16 bits and mapped to the sRGB picture Blender 5 shows
+    of it (colour.hdr_to_srgb_u8)."""
+    turns = quarter_turns(frame, display)
     if size is None:
-        rgb = np.rot90(rgb_of(frame), turns)
+        rgb = np.rot90(rgb_of(frame, display.hdr), turns)
         return np.ascontiguousarray(rgb)
-    w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)  # upright
+    w, h = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)  # as shown
     scale = size / min(w, h)
     rw, rh = max(size, round(w * scale)), max(size, round(h * scale))
     stored_w, stored_h = (rh, rw) if turns % 2 else (rw, rh)  # resized as stored, then turned
-    rgb = np.rot90(rgb_of(frame, width=stored_w, height=stored_h, interpolation="AREA"), turns)
+    rgb = np.rot90(rgb_of(frame, display.hdr, width=stored_w, height=stored_h, interpolation="AREA"), turns)
     y0, x0 = (rh - size) // 2, (rw - size) // 2
     return np.ascontiguousarray(rgb[y0:y0 + size, x0:x0 + size])
 
 
-def rgb_of(frame, **resize) -> np.ndarray:
-    """The frame as uint8 RGB (swscale's `resize` arguments, if any), HDR mapped to sRGB."""
-    transfer = hdr_transfer(frame)
+def rgb_of(frame, hdr: bool = True, **resize) -> np.ndarray:
+    """The frame as uint8 RGB (swscale's `resize` arguments, if any), HDR mapped to sRGB where `hdr`, else its
+    coded values."""
+    transfer = hdr_transfer(frame) if hdr else None
     if transfer is None:
         return frame.to_ndarray(format="rgb24", **resize)
     return hdr_to_srgb_u8(frame.to_ndarray(format="rgb48le", **resize), transfer)

@@ -1,7 +1,7 @@
 """Optional dependencies, probed once: torch is there on the command line and absent from Blender's own
 Python (the bundled network then runs on onnxruntime, and refining is skipped); pxr (USD) and OpenImageIO
-come with Blender's Python from 4.5 on and with our requirements, but not with every Python the extension
-may run in (the bpy 4.2 wheel has neither), so what needs them says so in one clear error (`require`)."""
+come with Blender's Python and with our requirements, but not with every Python the extension may run in (the
+bpy 4.2 and 4.3 wheels have neither), so what needs them says so in one clear error (`require`)."""
 from __future__ import annotations
 
 import functools

@@ -149,11 +149,12 @@ def test_matrix_installs_the_tests_imports_at_their_pins(tmp_path):
 
 
 def test_matrix_finds_the_modules_a_bpy_lacks(monkeypatch, tmp_path):
-    """This venv's bpy (5.0.1) bundles pxr and OpenImageIO; a module it lacks is named (the 4.2-4.4 wheels lack both,
-    and the matrix then installs them for the Blender tests), also where bpy prints a line of its own first (4.3)."""
+    """A module that neither this venv nor its bpy's bundle (5.0.1: pxr, OpenImageIO, oslquery, ...) has is named (the
+    4.2 and 4.3 wheels lack pxr and OpenImageIO, and the matrix then installs them for the Blender tests); one only the
+    bundle has is not, as the tests' sessions put the bundle on the path; also where bpy prints a line first (4.3)."""
     import blender_matrix
     assert blender_matrix.modules_bpy_lacks(Path(sys.executable)) == []
-    monkeypatch.setattr(blender_matrix, "MODULES", {"pxr": ("USD files", "usd-core"),
+    monkeypatch.setattr(blender_matrix, "MODULES", {"oslquery": ("OSL queries", "none on PyPI"),
                                                     "no_such_module_here": ("Nothing", "nothing")})
     talkative = tmp_path / "python"
     talkative.write_text(f'#!/bin/sh\necho "Unable to initialise audio"\nexec "{sys.executable}" "$@"\n')

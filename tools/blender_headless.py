@@ -57,13 +57,17 @@ def start_blender(user_dir, block=("torch", "numba")):
     for name in block:
         sys.modules[name] = None
     import bpy
-    # Blender's own Python has the modules Blender bundles (OpenImageIO, pxr, ... in 5.0 and later) on
-    # its path; the bpy module keeps them inside its package.
+    add_bundled_modules(bpy)
+    return bpy
+
+
+def add_bundled_modules(bpy) -> None:
+    """Put the modules Blender bundles (OpenImageIO, pxr, ...: the bpy wheels from 4.4 on) on this Python's path, as
+    Blender's own Python has them; the bpy module keeps them inside its package, off the path."""
     bundled = (Path(bpy.utils.resource_path("LOCAL")) / "python" / "lib" /
                f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages")
     if bundled.is_dir() and str(bundled) not in sys.path:
         sys.path.append(str(bundled))
-    return bpy
 
 
 def install_extension(bpy, zip_path):

@@ -116,12 +116,14 @@ def pinned(names, requirements: Path = ROOT / "requirements.txt") -> list[str]:
 
 def modules_bpy_lacks(python: Path) -> list[str]:
     """Which of the optional modules Blender's Python bundles (hypergs_blender.optional.MODULES: pxr, OpenImageIO)
-    `python`'s bpy does not bring: the bpy wheels bundle them from 4.5 on, 4.2-4.4's do not. The answer is the
-    last line printed, as bpy may print its own first (4.3: "Unable to initialise audio")."""
-    code = ("import importlib.util, json, sys, bpy; "
-            "print(json.dumps([m for m in sys.argv[1:] if importlib.util.find_spec(m) is None]))")
-    found = subprocess.run([str(python), "-c", code, *MODULES], capture_output=True, text=True, check=True,
-                           timeout=INSTALL_TIMEOUT)
+    `python` cannot import once its bpy's bundled modules are on the path, as the Blender tests' sessions put them
+    (blender_headless.add_bundled_modules): the bpy wheels bundle them from 4.4 on, 4.2's and 4.3's do not. The
+    answer is the last line printed, as bpy may print its own first (4.3: "Unable to initialise audio")."""
+    code = ("import importlib.util, json, sys; sys.path.insert(0, sys.argv[1]); import bpy; "
+            "from blender_headless import add_bundled_modules; add_bundled_modules(bpy); "
+            "print(json.dumps([m for m in sys.argv[2:] if importlib.util.find_spec(m) is None]))")
+    found = subprocess.run([str(python), "-c", code, str(Path(__file__).parent), *MODULES], capture_output=True,
+                           text=True, check=True, timeout=INSTALL_TIMEOUT)
     return json.loads(found.stdout.splitlines()[-1])
 
 

@@ -5,7 +5,7 @@ The work happens in `hypergs_blender` (no bpy); `ops`, `ui` and `engine` are the
 import bpy
 
 from . import engine, ops, ui
-from .com import cache, frames, paths
+from .com import cache, frames, mesh, paths
 from .ops.props import HyperGSClipSettings, HyperGSSceneSettings
 
 CLASSES = [*ops.CLASSES, *ui.CLASSES, *engine.CLASSES]
@@ -21,9 +21,11 @@ def register():
     paths.register()
     cache.register()
     frames.register()
+    mesh.register()
 
 
 def unregister():
+    mesh.unregister()
     frames.unregister()
     cache.unregister()
     paths.unregister()

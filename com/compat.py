@@ -12,6 +12,9 @@ here and nowhere else, so the rest of the glue is written once:
   display rotation since 4.4, HDR video colour-managed since 5.0 (before, its coded values as sRGB). Measured
   with the bpy wheels on a rotated HLG video: 4.2.23 and 4.3.0 show it as stored, 4.4.0 and 4.5.15 upright with
   mid-grey 128 as 128, 5.0.1 upright with 128 as 189 (its strip's colour space "Rec.2100-HLG").
+- A mesh's first entry into Edit Mode (Tab or an operator) after its attributes were made makes another
+  attribute active in 5.1 (measured in 5.1.2: `rotation` or `position`); 5.0 and 5.2 keep the active one
+  (EDIT_MODE_KEEPS_ACTIVE_ATTRIBUTE).
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ _STRIP = getattr(bpy.types, "Strip", None) or bpy.types.Sequence  # renamed in 4
 _NEW_TIMING = "left_handle" in _STRIP.bl_rna.properties
 _PATH_RELATIVE = "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties
 MOVIE_DISPLAY = Display(rotation=bpy.app.version >= (4, 4, 0), hdr=bpy.app.version >= (5, 0, 0))
+EDIT_MODE_KEEPS_ACTIVE_ATTRIBUTE = not (5, 1, 0) <= bpy.app.version < (5, 2, 0)
 
 
 def set_modifier_input(modifier, identifier: str, value) -> None:

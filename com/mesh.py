@@ -2,14 +2,20 @@
 reading its points' attributes (see hypergs_blender/points.py for what they mean), the frame a cache
 clip's mesh holds (SHOWN, com/frames.py), the outline mesh of a linked clip, and the path of a clip's
 linked file. Clips embedded whole (made before frame caches) also have a `frame` attribute
-(`read_clip_points`).
+(`read_clip_points`). Where Blender loses the active attribute on entering Edit Mode (compat.py), a handler
+makes a clip's `color` active again.
 """
 from __future__ import annotations
 
+import threading
+
 import bpy
 import numpy as np
+from bpy.app.handlers import persistent
 
 from ..hypergs_blender.errors import HyperGSError
+from . import add_handlers, remove_handlers
+from .compat import EDIT_MODE_KEEPS_ACTIVE_ATTRIBUTE
 
 
 def is_clip(obj) -> bool:
@@ -123,3 +129,34 @@ def linked_file(obj) -> str:
     """Absolute path of a linked clip's file ('' when none is set)."""
     path = obj.hypergs.linked_path
     return bpy.path.abspath(path, library=obj.library) if path else ""
+
+
+_in_edit_mode: set[int] = set()  # session_uid of the clips last seen in Edit Mode
+
+
+@persistent
+def _after_depsgraph_update(scene, depsgraph):
+    """A clip that has just entered Edit Mode (Tab included) gets `color` active again; once per entry, so an
+    attribute the user picks in Edit Mode stays active."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for update in depsgraph.updates:
+        obj = update.id.original
+        if not isinstance(obj, bpy.types.Object) or not is_clip(obj):
+            continue
+        if obj.mode != "EDIT":
+            _in_edit_mode.discard(obj.session_uid)
+        elif obj.session_uid not in _in_edit_mode:
+            _in_edit_mode.add(obj.session_uid)
+            make_color_active(obj.data)
+
+
+HANDLERS = () if EDIT_MODE_KEEPS_ACTIVE_ATTRIBUTE else (("depsgraph_update_post", _after_depsgraph_update),)
+
+
+def register():
+    add_handlers(HANDLERS)
+
+
+def unregister():
+    remove_handlers(HANDLERS)

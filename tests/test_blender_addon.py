@@ -152,6 +152,8 @@ def test_moving_a_point_in_edit_mode_changes_the_render_there(session):
     assert r["max_change_far"] < 2 / 255
     assert r["psnr_vs_core_edited"] > 40
     assert r["other_frame_unchanged"]
+    # `color` is active in Edit Mode (Blender 5.1 made `rotation` active: com/compat.py), and stays the user's pick
+    assert r["active_in_edit_mode"] == ["color", "scale"]
 
 
 def test_delete_and_recolour_in_edit_mode_show_in_render(session):
@@ -448,7 +450,13 @@ def run_session(zip_path, work, out_path):
         vertex = int(index[k])
         delta = np.array([0.35, 0.25, 0.0])  # plane units (canvas height = 2)
         bpy.context.view_layer.objects.active = obj
-        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.object.mode_set(mode="EDIT")  # as Tab does: the clip's first time in Edit Mode
+        attributes = obj.data.attributes
+        bpy.context.view_layer.update()  # as the UI updates the depsgraph after an operator
+        active = [attributes.active.name]
+        attributes.active = attributes["scale"]  # the user picks another attribute in Edit Mode
+        bpy.context.view_layer.update()
+        active.append(attributes.active.name)
         bm = bmesh.from_edit_mesh(obj.data)
         bm.verts.ensure_lookup_table()
         bm.verts[vertex].co += _vec(delta)
@@ -469,7 +477,8 @@ def run_session(zip_path, work, out_path):
         return dict(vertex=vertex, changed_near_old=float(change[near_old].max()),
                     changed_near_new=float(change[near_new].max()), max_change_far=float(change[far].max()),
                     psnr_vs_core_edited=float(psnr(after, core_render(edited, W, H))),
-                    other_frame_unchanged=bool(np.abs(other_after - other_before).max() < 1e-6))
+                    other_frame_unchanged=bool(np.abs(other_after - other_before).max() < 1e-6),
+                    active_in_edit_mode=active)
 
     @record("delete_recolour")
     def _():
